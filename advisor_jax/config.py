@@ -1,0 +1,256 @@
+"""Configuration: static shapes and switches vs. vmappable scalar hyperparameters.
+
+Two kinds of configuration (STYLE.md, habit 2):
+
+* ``AgentConfig`` / ``TrainConfig`` are frozen dataclasses of *static* values: anything that
+  fixes a shape, a loop length or a code path (network sizes, buffer and batch sizes, the
+  algorithm and advisor switches, the TD3 delay d). Changing one recompiles.
+* ``HParams`` is a ``flax.struct`` dataclass of *scalars* (γ, τ, β, learning rates, ε_st,
+  b, N_T, noise scales). Every field is a pytree leaf, so a grid of seeds × hyperparameters
+  is one ``vmap`` over a stacked ``HParams`` and one compile.
+
+Defaults are the paper's simulation column (Tables A2, A4). Two readings of the paper are
+ours (DESIGN.md): the decay b = 0.15 of Table A2 cannot be per episode (ε_st - bN would be
+negative after six episodes), so the default is 0.15 per 100 episodes, b = 0.0015; and the
+Ornstein–Uhlenbeck parameters, which the paper does not give, default to θ = 0.15, σ = 0.2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Literal
+
+import numpy as np
+from flax import struct
+
+Algo = Literal["ddpg", "addpg", "td3", "atd3"]
+ALGOS: tuple[str, ...] = ("ddpg", "addpg", "td3", "atd3")
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentConfig:
+    """Static description of one agent type (shapes and code paths)."""
+
+    algo: Algo = "atd3"
+    """Learner: ddpg / td3 use the deterministic policy gradient; addpg / atd3 use the
+    target Â = π(S) + β∇_aQ with an MSE actor loss (Alg. 2 / A3)."""
+    advisor_data: bool = True
+    """AfD: the advisor takes part in data collection through the Eq. 1 selector."""
+    advisor_policy: bool = True
+    """AfP: the advisor replaces Â per sample where the critic rates it higher (Alg. 2
+    steps 11-13). Only for addpg / atd3."""
+    actor_hidden: tuple[int, ...] = (600, 300)
+    """Actor hidden widths (paper: 600, 300 → 193,502 parameters)."""
+    critic_state_hidden: int = 1000
+    """Critic width of the state-only first layer (paper: 1000)."""
+    critic_hidden: tuple[int, ...] = (500, 600)
+    """Critic widths after the action joins (paper: 500, 600 → 823,701 parameters)."""
+    buffer_size: int = 100_000
+    """Replay capacity per agent (Table A2)."""
+    batch_size: int = 1000
+    """Minibatch n (Table A2)."""
+    policy_delay: int = 4
+    """TD3/ATD3 delay d: actor and target updates every d critic updates (Table A4).
+    Ignored (taken as 1) for ddpg / addpg."""
+    learning_starts: int = 0
+    """Transitions in the buffer before the first update; 0 means the batch size."""
+
+    def __post_init__(self):
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        if self.advisor_policy and self.algo in ("ddpg", "td3"):
+            raise ValueError(
+                f"advisor_policy (AfP) needs the Eq. 2 actor target of addpg/atd3, "
+                f"not algo={self.algo!r}"
+            )
+        _positive("batch_size", self.batch_size)
+        _positive("buffer_size", self.buffer_size)
+        _positive("policy_delay", self.policy_delay)
+        _positive("critic_state_hidden", self.critic_state_hidden)
+        for name in ("actor_hidden", "critic_hidden"):
+            widths = getattr(self, name)
+            if not widths or any(int(w) <= 0 for w in widths):
+                raise ValueError(f"{name} must be non-empty positive widths, got {widths}")
+        if self.batch_size > self.buffer_size:
+            raise ValueError(
+                f"batch_size={self.batch_size} is larger than buffer_size={self.buffer_size}"
+            )
+        if self.learning_starts < 0 or self.learning_starts > self.buffer_size:
+            raise ValueError(
+                f"learning_starts={self.learning_starts} must be in [0, buffer_size]"
+            )
+
+    @property
+    def twin(self) -> bool:
+        """Twin critics and target smoothing (TD3 family)."""
+        return self.algo in ("td3", "atd3")
+
+    @property
+    def n_critics(self) -> int:
+        return 2 if self.twin else 1
+
+    @property
+    def advisor_target(self) -> bool:
+        """Actor trained towards Â of Eq. 2 (ADDPG family) rather than by the DPG."""
+        return self.algo in ("addpg", "atd3")
+
+    @property
+    def delay(self) -> int:
+        """Effective d: 1 for the DDPG family."""
+        return self.policy_delay if self.twin else 1
+
+    @property
+    def warmup(self) -> int:
+        return self.learning_starts or self.batch_size
+
+    @property
+    def name(self) -> str:
+        """Paper-style name, e.g. ``ATD3+AfDP``."""
+        suffix = {
+            (True, True): "+AfDP",
+            (True, False): "+AfD",
+            (False, True): "+AfP",
+            (False, False): "",
+        }
+        return self.algo.upper() + suffix[(self.advisor_data, self.advisor_policy)]
+
+
+def parse_agent(name: str, **overrides) -> AgentConfig:
+    """``"ATD3+AfDP"`` (any case) → AgentConfig. Extra keyword args override fields."""
+    parts = name.strip().lower().replace(" ", "").split("+")
+    algo, flags = parts[0], parts[1:]
+    if algo not in ALGOS:
+        raise ValueError(
+            f"unknown agent {name!r}: the algorithm must be one of {', '.join(ALGOS)} "
+            f"(optionally +AfD, +AfP or +AfDP), e.g. 'ATD3+AfDP'"
+        )
+    known = {"afd": (True, False), "afp": (False, True), "afdp": (True, True)}
+    data = policy = False
+    for flag in flags:
+        if flag not in known:
+            raise ValueError(f"unknown advisor switch {flag!r} in agent {name!r}; use AfD, AfP or AfDP")
+        d, p = known[flag]
+        data, policy = data or d, policy or p
+    return AgentConfig(algo=algo, advisor_data=data, advisor_policy=policy, **overrides)
+
+
+# The agent rows of the paper's Table 1 that this project implements.
+PAPER_AGENTS = ("DDPG", "ADDPG", "ADDPG+AfD", "ADDPG+AfP", "ADDPG+AfDP", "ATD3+AfDP")
+
+
+@struct.dataclass
+class HParams:
+    """Scalar hyperparameters; every field can differ across the agents of one vmap."""
+
+    gamma: float = 0.9  # γ, Table A2
+    tau: float = 0.1  # τ, soft target update, Eqs. (6), (7)
+    beta: float = 0.01  # β, Eq. (2)
+    lr_actor: float = 1e-5  # α_actor
+    lr_critic: float = 1e-3  # α_critic
+    eps_start: float = 0.85  # ε_st, Eq. (1)
+    eps_decay: float = 0.0015  # b, Eq. (1): per episode (paper's 0.15 read per 100)
+    advisor_episodes: float = 250.0  # N_T, Eq. (1): advisor off once N > N_T
+    ou_theta: float = 0.15  # Ornstein–Uhlenbeck mean reversion
+    ou_sigma: float = 0.2  # Ornstein–Uhlenbeck scale (normalised action units)
+    target_noise: float = 0.1  # σ̄, TD3 target smoothing (Table A4)
+    target_noise_clip: float = 0.2  # c, Table A4
+
+
+HPARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(HParams))
+
+# Allowed ranges: (low, high, low inclusive, high inclusive).
+_HPARAM_RANGES = {
+    "gamma": (0.0, 1.0, True, False),
+    "tau": (0.0, 1.0, False, True),
+    "beta": (0.0, math.inf, True, False),
+    "lr_actor": (0.0, math.inf, False, False),
+    "lr_critic": (0.0, math.inf, False, False),
+    "eps_start": (0.0, 1.0, True, True),
+    "eps_decay": (0.0, math.inf, True, False),
+    "advisor_episodes": (0.0, math.inf, True, False),
+    "ou_theta": (0.0, math.inf, True, False),
+    "ou_sigma": (0.0, math.inf, True, False),
+    "target_noise": (0.0, math.inf, True, False),
+    "target_noise_clip": (0.0, math.inf, True, False),
+}
+
+
+def validate_hparams(hp: HParams) -> None:
+    """Raises ValueError naming the field, the bad value and the agent index (if stacked)."""
+    for name in HPARAM_NAMES:
+        values = np.atleast_1d(np.asarray(getattr(hp, name), dtype=np.float64))
+        low, high, low_inc, high_inc = _HPARAM_RANGES[name]
+        ok = np.isfinite(values) | (np.isinf(values) & (high == math.inf) & (values > 0))
+        ok &= (values >= low) if low_inc else (values > low)
+        ok &= (values <= high) if high_inc else (values < high)
+        if not ok.all():
+            bad = int(np.flatnonzero(~ok)[0])
+            where = f" (agent {bad})" if values.size > 1 else ""
+            lo, hi = ("[" if low_inc else "("), ("]" if high_inc else ")")
+            raise ValueError(
+                f"hyperparameter {name}={values[bad]:g}{where} is outside {lo}{low:g}, {high:g}{hi}"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Static description of a training run (shared by every agent of one vmap)."""
+
+    agent: AgentConfig = AgentConfig()
+    arena: str = "training"
+    """Arena to train in (see ``advisor-jax arena --help``)."""
+    episodes: int = 500
+    """N_total: training episodes per agent."""
+    envs_per_agent: int = 1
+    """Environments each agent collects from in parallel (paper: 1)."""
+    updates_per_step: int = 1
+    """Gradient updates per environment step of an agent (the paper trains
+    asynchronously; we update synchronously)."""
+    chunk_steps: int = 1000
+    """Environment steps per jitted host-loop iteration (progress, metrics, checkpoints)."""
+    max_episode_steps: int = 0
+    """h_max; 0 means the arena's default (300 simulation, 150 physical)."""
+
+    def __post_init__(self):
+        _positive("episodes", self.episodes)
+        _positive("envs_per_agent", self.envs_per_agent)
+        _positive("updates_per_step", self.updates_per_step)
+        _positive("chunk_steps", self.chunk_steps)
+        if self.max_episode_steps < 0:
+            raise ValueError(f"max_episode_steps must be >= 0, got {self.max_episode_steps}")
+
+
+def _positive(name: str, value: int) -> None:
+    if int(value) <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {value}")
+
+
+# Presets --------------------------------------------------------------------------------
+
+PRESETS: dict[str, tuple[dict, dict, dict]] = {
+    # name: (AgentConfig overrides, TrainConfig overrides, HParams overrides)
+    "paper": ({}, {}, {}),
+    "physical": (
+        dict(buffer_size=50_000, batch_size=500, policy_delay=3),
+        dict(arena="physical", episodes=200),
+        dict(lr_actor=1e-4, eps_start=0.9, eps_decay=0.001, advisor_episodes=100.0,
+             target_noise=0.05, target_noise_clip=0.1),
+    ),
+    # Small networks and budgets that train in minutes on a 2-core CPU.
+    "quick": (
+        dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
+             buffer_size=20_000, batch_size=128),
+        dict(episodes=60, chunk_steps=500),
+        dict(lr_actor=1e-3, advisor_episodes=30.0, eps_decay=0.01),
+    ),
+}  # fmt: skip
+
+
+def preset(name: str, agent: str = "ATD3+AfDP") -> tuple[TrainConfig, HParams]:
+    """A named preset for one agent type: (static config, hyperparameters)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    agent_kw, train_kw, hp_kw = PRESETS[name]
+    agent_cfg = parse_agent(agent, **agent_kw)
+    return TrainConfig(agent=agent_cfg, **train_kw), HParams(**hp_kw)

@@ -1,0 +1,67 @@
+"""Lidar scan → 16 proximity zones (paper §5.2), shared verbatim by simulator and car.
+
+The paper's car reduces the ~200 readings of an RPLIDAR A2 turn to 16 distances by taking
+the minimum reading in each angular zone. The simulated ``physical`` arena does the same to
+its 200 MuJoCo rangefinder beams by calling this very function with ``xp=jax.numpy``; the
+car calls it with ``xp=numpy``. The zone definition is in ``spec.py``.
+
+Written against a generic array module ``xp`` (numpy or jax.numpy) with no data-dependent
+Python control flow, so it is jit- and vmap-safe.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from advisor_jax.runner import spec
+
+
+def zone_index(angles_rad: Any, xp: Any = np) -> Any:
+    """Zone (0..15) of each robot-frame beam angle (radians, CCW positive, 0 = forward).
+
+    Any real angle is accepted: the mapping wraps, so +180° and -180° land in the same zone.
+    """
+    width = math.radians(spec.ZONE_WIDTH_DEG)
+    start = math.radians(spec.ZONE_START_DEG)
+    # start - w (k + 1) < a <= start - w k  <=>  k <= (start - a) / w < k + 1.
+    k = xp.floor((start - angles_rad) / width)
+    return xp.mod(k, spec.N_ZONES).astype(xp.int32)
+
+
+def reduce_to_zones(
+    angles_rad: Any,
+    ranges_m: Any,
+    valid: Any | None = None,
+    *,
+    max_range: float = spec.MAX_RANGE,
+    range_offset: float = 0.0,
+    xp: Any = np,
+) -> Any:
+    """Minimum free distance per zone.
+
+    Args:
+      angles_rad: [beams] robot-frame beam angles (CCW positive, 0 = forward).
+      ranges_m: [beams] measured ranges from the lidar origin, metres.
+      valid: optional [beams] bool; readings that are invalid, non-finite or <= 0 are
+        dropped whatever this says.
+      max_range: value of an empty zone, and upper clip of every zone.
+      range_offset: subtracted from every range before the minimum (the distance from the
+        lidar origin to the body edge), so that zones read free distance like the sonars.
+      xp: array module, ``numpy`` or ``jax.numpy``.
+
+    Returns:
+      [16] zone distances in [0, max_range], in the sonar-ring order of ``spec``.
+    """
+    angles_rad = xp.asarray(angles_rad)
+    ranges_m = xp.asarray(ranges_m)
+    ok = xp.isfinite(ranges_m) & xp.isfinite(angles_rad) & (ranges_m > 0)
+    if valid is not None:
+        ok = ok & xp.asarray(valid, dtype=bool)
+    safe = xp.where(ok, ranges_m, max_range + range_offset)
+    free = xp.clip(safe - range_offset, 0.0, max_range)
+    idx = zone_index(xp.where(xp.isfinite(angles_rad), angles_rad, 0.0), xp=xp)
+    member = (idx[:, None] == xp.arange(spec.N_ZONES)[None, :]) & ok[:, None]  # [beams, 16]
+    return xp.min(xp.where(member, free[:, None], max_range), axis=0)
