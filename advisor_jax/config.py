@@ -28,6 +28,11 @@ Algo = Literal["ddpg", "addpg", "td3", "atd3"]
 ALGOS: tuple[str, ...] = ("ddpg", "addpg", "td3", "atd3")
 
 
+def _positive(name: str, value: int) -> None:
+    if int(value) <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {value}")
+
+
 @dataclasses.dataclass(frozen=True)
 class AgentConfig:
     """Static description of one agent type (shapes and code paths)."""
@@ -77,9 +82,7 @@ class AgentConfig:
                 f"batch_size={self.batch_size} is larger than buffer_size={self.buffer_size}"
             )
         if self.learning_starts < 0 or self.learning_starts > self.buffer_size:
-            raise ValueError(
-                f"learning_starts={self.learning_starts} must be in [0, buffer_size]"
-            )
+            raise ValueError(f"learning_starts={self.learning_starts} must be in [0, buffer_size]")
 
     @property
     def twin(self) -> bool:
@@ -129,7 +132,9 @@ def parse_agent(name: str, **overrides) -> AgentConfig:
     data = policy = False
     for flag in flags:
         if flag not in known:
-            raise ValueError(f"unknown advisor switch {flag!r} in agent {name!r}; use AfD, AfP or AfDP")
+            raise ValueError(
+                f"unknown advisor switch {flag!r} in agent {name!r}; use AfD, AfP or AfDP"
+            )
         d, p = known[flag]
         data, policy = data or d, policy or p
     return AgentConfig(algo=algo, advisor_data=data, advisor_policy=policy, **overrides)
@@ -221,11 +226,6 @@ class TrainConfig:
             raise ValueError(f"max_episode_steps must be >= 0, got {self.max_episode_steps}")
 
 
-def _positive(name: str, value: int) -> None:
-    if int(value) <= 0:
-        raise ValueError(f"{name} must be a positive integer, got {value}")
-
-
 # Presets --------------------------------------------------------------------------------
 
 PRESETS: dict[str, tuple[dict, dict, dict]] = {
@@ -247,10 +247,24 @@ PRESETS: dict[str, tuple[dict, dict, dict]] = {
 }  # fmt: skip
 
 
-def preset(name: str, agent: str = "ATD3+AfDP") -> tuple[TrainConfig, HParams]:
-    """A named preset for one agent type: (static config, hyperparameters)."""
+def preset(name: str, agent: str = "ATD3+AfDP", **agent_overrides) -> tuple[TrainConfig, HParams]:
+    """A named preset for one agent type: (static config, hyperparameters).
+
+    ``agent_overrides`` replace AgentConfig fields of the preset (e.g. ``batch_size=64``).
+    """
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     agent_kw, train_kw, hp_kw = PRESETS[name]
-    agent_cfg = parse_agent(agent, **agent_kw)
+    agent_cfg = parse_agent(agent, **{**agent_kw, **agent_overrides})
     return TrainConfig(agent=agent_cfg, **train_kw), HParams(**hp_kw)
+
+
+def train_config_from_dict(d: dict) -> TrainConfig:
+    """Inverse of ``dataclasses.asdict(TrainConfig)`` (as saved in run.json)."""
+    try:
+        agent = dict(d["agent"])
+        for name in ("actor_hidden", "critic_hidden"):
+            agent[name] = tuple(agent[name])
+        return TrainConfig(**{**d, "agent": AgentConfig(**agent)})
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"not a training configuration: {e}") from None

@@ -6,7 +6,10 @@ its 200 MuJoCo rangefinder beams by calling this very function with ``xp=jax.num
 car calls it with ``xp=numpy``. The zone definition is in ``spec.py``.
 
 Written against a generic array module ``xp`` (numpy or jax.numpy) with no data-dependent
-Python control flow, so it is jit- and vmap-safe.
+Python control flow, so it is jit- and vmap-safe. With ``xp=numpy`` (the car, where the
+control cycle has a latency budget) the minimum is a scatter-minimum (``np.minimum.at``) over
+the same zone indices and the same free distances instead of a [beams, 16] membership
+matrix: a minimum is exact, so both paths give the same bits (tests/runner checks it).
 """
 
 from __future__ import annotations
@@ -55,6 +58,8 @@ def reduce_to_zones(
     Returns:
       [16] zone distances in [0, max_range], in the sonar-ring order of ``spec``.
     """
+    if xp is np:  # the car: same result, ~3x faster (module docstring)
+        return _reduce_numpy(angles_rad, ranges_m, valid, max_range, range_offset)
     angles_rad = xp.asarray(angles_rad)
     ranges_m = xp.asarray(ranges_m)
     ok = xp.isfinite(ranges_m) & xp.isfinite(angles_rad) & (ranges_m > 0)
@@ -65,3 +70,26 @@ def reduce_to_zones(
     idx = zone_index(xp.where(xp.isfinite(angles_rad), angles_rad, 0.0), xp=xp)
     member = (idx[:, None] == xp.arange(spec.N_ZONES)[None, :]) & ok[:, None]  # [beams, 16]
     return xp.min(xp.where(member, free[:, None], max_range), axis=0)
+
+
+def _reduce_numpy(angles_rad, ranges_m, valid, max_range: float, range_offset: float):
+    """``reduce_to_zones`` for numpy as a scatter-minimum over the same zone indices.
+
+    Kept readings get exactly the generic path's free distance (``clip`` written as maximum
+    then minimum: the same values bit for bit); dropped ones never reach the minimum, so
+    their angle and range do not matter. An empty scan gives max_range everywhere.
+    """
+    angles_rad = np.asarray(angles_rad)
+    ranges_m = np.asarray(ranges_m)
+    ok = (ranges_m > 0) & (ranges_m < np.inf)  # NaN compares False: finite and positive
+    finite_angle = np.isfinite(angles_rad)
+    ok &= finite_angle
+    if valid is not None:
+        ok &= np.asarray(valid, dtype=bool)
+    # = np.clip(ranges - offset, 0, max_range), bit for bit, without np.clip's overhead
+    free = np.minimum(np.maximum(ranges_m - range_offset, 0.0), max_range)
+    if not finite_angle.all():  # keep NaN out of the integer cast; those beams are dropped
+        angles_rad = np.where(finite_angle, angles_rad, 0.0)
+    out = np.full(spec.N_ZONES, max_range, dtype=free.dtype)
+    np.minimum.at(out, zone_index(angles_rad), np.where(ok, free, max_range))
+    return out

@@ -1,0 +1,151 @@
+"""The ``advisor-jax`` console script: one tyro subcommand per function in ``SUBCOMMANDS``.
+
+    advisor-jax arena training --xml training.xml          # standalone MJCF of an arena
+    advisor-jax arena procedural --seed 3 --xml p3.xml      # a procedural layout
+    advisor-jax evaluate --policy advisor --arena validation --episodes 500 [--json]
+
+To add a subcommand, write a function with type-hinted keyword arguments and a docstring
+(tyro turns them into flags and ``--help``) and add it to ``SUBCOMMANDS``. ``main`` turns
+every ``ValueError``, ``OSError`` and runner error into one red ``error: ...`` line and exit
+status 2, never a traceback. JAX, MuJoCo and the environments are imported inside the
+commands, so ``--help`` stays quick.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json as jsonlib
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import tyro
+from rich.console import Console
+from rich.table import Table
+from rich.text import Text
+
+from advisor_jax.runner.errors import RunnerError
+
+
+def _envs():
+    """Imports ``envs``. MuJoCo's MJX prints "Failed to import warp" on stdout when the
+    optional warp back end is absent; send it to stderr so ``--json`` output stays JSON."""
+    with contextlib.redirect_stdout(sys.stderr):
+        import envs
+    return envs
+
+
+def arena(
+    name: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="NAME")],
+    xml: Path,
+    seed: int = 0,
+) -> None:
+    """Write an arena as a standalone MuJoCo XML file (loads in plain MuJoCo and the viewer).
+
+    Args:
+      name: Arena: training, validation, physical or procedural.
+      xml: Output file.
+      seed: Procedural arena only: write the layout of the first episode of
+        env.reset(PRNGKey(seed)), as drawn in training and evaluation.
+    """
+    import jax
+
+    env = _envs().make_env(name)
+    boxes = env.layout_boxes(jax.random.PRNGKey(seed)) if env.procedural else None
+    text = env.xml(boxes)
+    try:
+        xml.write_text(text)
+    except OSError as err:
+        raise OSError(f"cannot write {xml}: {err.strerror or err}") from err
+    Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
+
+
+def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
+    """``(policy_apply, params)`` for a policy name; ``policy_apply(params, obs) -> action``.
+
+    Knows ``advisor`` (Algorithm A1 with the arena's T_o). Extend here for trained policies.
+    """
+    if policy == "advisor":
+        from advisor_jax.advisor import advisor_action
+
+        return (lambda params, obs: advisor_action(obs, params)), env.advisor_params
+    raise ValueError(f"unknown policy {policy!r}; known policies: advisor")
+
+
+def evaluate(
+    policy: str = "advisor",
+    arena: str = "training",
+    episodes: int = 500,
+    seed: int = 0,
+    json: bool = False,
+) -> dict:
+    """Evaluate a policy deterministically (no exploration noise) over many episodes at once.
+
+    Runs all episodes as parallel environments (each one's first episode counts) and
+    prints the success, collision and timeout rates and the mean collision speed.
+
+    Args:
+      policy: Policy to evaluate: advisor (the paper's rule-based advisor, Alg. A1).
+      arena: Arena: training, validation, physical or procedural.
+      episodes: Number of test episodes (the paper uses 500 for the advisor).
+      seed: Seed of the episodes' starts, goals (and procedural layouts).
+      json: Print one JSON object instead of a table.
+    """
+    import jax
+
+    if episodes <= 0:
+        raise ValueError(f"--episodes must be a positive integer, got {episodes}")
+    env = _envs().make_env(arena)
+    from advisor_jax.evaluate import make_evaluate, summary
+
+    apply, params = resolve_policy(policy, env)
+    evaluate_fn = jax.jit(make_evaluate(env, apply, episodes))
+    status = Console(stderr=True)
+    with status.status(f"compiling and running {episodes} episodes of {arena} (h_max = "
+                       f"{env.max_episode_steps}) ..."):  # fmt: skip
+        metrics = jax.block_until_ready(evaluate_fn(params, jax.random.PRNGKey(seed)))
+    result = {"policy": policy, "arena": arena, "seed": seed, **summary(metrics)}
+    if json:
+        print(jsonlib.dumps(result))
+    else:
+        _print_table(result)
+    return result
+
+
+def _print_table(result: dict) -> None:
+    table = Table(title=f"{result['policy']} in {result['arena']} ({result['episodes']} episodes)")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for key in ("success_rate", "collision_rate", "timeout_rate"):
+        table.add_row(key.replace("_", " "), f"{100 * result[key]:.1f} %")
+    speed = result["mean_collision_speed"]
+    table.add_row("mean collision speed", "n/a" if speed is None else f"{speed:.3f} m/s")
+    table.add_row("mean episode length", f"{result['mean_length']:.1f} steps")
+    table.add_row("mean return", f"{result['mean_return']:.2f}")
+    Console().print(table)
+
+
+SUBCOMMANDS: dict[str, Callable[..., Any]] = {"arena": arena, "evaluate": evaluate}
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Entry point of ``advisor-jax``; ``argv`` defaults to ``sys.argv[1:]``."""
+    try:
+        tyro.extras.subcommand_cli_from_dict(
+            SUBCOMMANDS,
+            prog="advisor-jax",
+            description="Advisor-based DDPG/TD3 navigation agents in JAX/MJX "
+            "(Wijesinghe et al., Robotics 2023).",
+            args=argv,
+        )
+    except (ValueError, OSError, RunnerError) as err:
+        message = " ".join(str(err).split()) or type(err).__name__
+        Console(stderr=True, highlight=False).print(
+            Text(f"error: {message}", style="bold red"), soft_wrap=True
+        )
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""``advisor-jax export``: one trained agent → policy directory for the numpy car runner."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+
+from advisor_jax.config import HPARAM_NAMES
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportArgs:
+    """Export a trained actor (policy.npz, policy.json, golden.npz [, policy.onnx]).
+
+    The golden set holds observations from real rollouts of the exported actor in its
+    training arena plus edge cases, with the JAX actor's actions; the car runner refuses
+    to drive unless its numpy MLP reproduces them within 1e-5.
+
+    Example:
+      advisor-jax export runs/atd3_afdp-quick-20261122 --agent 0 --out policy/ --onnx
+    """
+
+    source: Annotated[Path, tyro.conf.Positional]
+    """Run directory written by ``advisor-jax train``."""
+    out: Path
+    """Export directory (created; files are replaced atomically)."""
+    agent: int = 0
+    """Index of the agent in the run (see run.json "agents")."""
+    onnx: bool = False
+    """Also write policy.onnx (opset 13), checked against onnxruntime."""
+    golden_envs: int = 16
+    """Parallel rollout environments for the golden observations."""
+    golden_steps: int = 32
+    """Rollout steps per environment for the golden observations."""
+    seed: int = 0
+    """Seed of the golden rollouts."""
+
+
+def rollout_observations(env, policy_apply, params, key, n_envs: int, steps: int):
+    """[n_envs · steps, 20] observations met by the deterministic policy (auto-reset on)."""
+    import jax
+    import numpy as np
+
+    def body(states, _):
+        actions = jax.vmap(policy_apply, in_axes=(None, 0))(params, states.obs)
+        return jax.vmap(env.step)(states, actions), states.obs
+
+    states = jax.vmap(env.reset)(jax.random.split(key, n_envs))
+    _, obs = jax.jit(lambda s: jax.lax.scan(body, s, None, length=steps))(states)
+    return np.asarray(obs).reshape(-1, obs.shape[-1])
+
+
+def export_command(args: ExportArgs) -> dict:
+    """Entry point of ``advisor-jax export``; returns the written policy.json dict."""
+    import jax
+
+    import envs
+    from advisor_jax.export import export_policy
+    from advisor_jax.networks import Actor
+    from advisor_jax.runs import load_actor
+
+    if args.golden_envs <= 0 or args.golden_steps <= 0:
+        raise ValueError("--golden-envs and --golden-steps must be positive")
+    cfg, row, actor = load_actor(args.source, args.agent)
+    overrides = {"max_episode_steps": cfg.max_episode_steps} if cfg.max_episode_steps else {}
+    env = envs.make_env(cfg.arena, **overrides)
+    policy_apply = Actor(hidden=cfg.agent.actor_hidden).apply
+    obs = rollout_observations(
+        env, policy_apply, actor, jax.random.PRNGKey(args.seed), args.golden_envs, args.golden_steps
+    )
+    config_meta = {
+        "agent": cfg.agent.name,
+        "source": str(args.source),
+        "agent_index": args.agent,
+        "seed": row["seed"],
+        "hparams": {k: row[k] for k in HPARAM_NAMES},
+        "train_config": dataclasses.asdict(cfg),
+    }
+    meta = export_policy(
+        actor,
+        args.out,
+        actor_hidden=cfg.agent.actor_hidden,
+        env_meta=env.metadata(),
+        config_meta=config_meta,
+        golden_obs=obs,
+        onnx=args.onnx,
+    )
+    print(f"exported agent {args.agent} ({cfg.agent.name}) of {args.source} to {args.out}/")
+    return meta

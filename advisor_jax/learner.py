@@ -1,0 +1,280 @@
+"""Update rules of DDPG, ADDPG (Alg. 2), TD3 and ATD3 (Alg. A3), with the advisor (AfP).
+
+One implementation, configured by ``AgentConfig`` (``algo``, ``advisor_policy``). The
+trainer owns the schedule: per sampled batch B it calls ``critic_step`` and then, every
+``cfg.delay``-th update (every update for the DDPG family), ``actor_step`` on the same
+batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3 steps 9-22)::
+
+    critic_step(B):                                     # Alg. 2 steps 7-8, Alg. A3 10-14
+        A' = π^T(S')                                    # DDPG / ADDPG, Eq. (4)
+        A' = clip(π^T(S') + clip(N(0, σ̄), -c, c), box)  # TD3 / ATD3
+        Q̂  = R + γ (1 - terminal) min_k Q_k^T(S', A')   # one critic: min is Q^T
+        L_Q = Σ_k (1/n) Σ_i (Q̂_i - Q_k(s_i, a_i))²      # Eq. (5) with Q(S, A), see below
+    actor_step(B):                                      # Alg. 2 steps 9-15, Alg. A3 16-22
+        DDPG / TD3:   L_π = -(1/n) Σ_i Q_1(s_i, π(s_i))                 # DPG
+        ADDPG / ATD3: A_act = π(S);  Â = A_act + β ∇_a Q_1(S, A_act)     # Eq. (2)
+                      AfP: Â_i ← a_adv,i where Q_1(s_i, a_adv,i) > Q_1(s_i, Â_i)
+                      L_π = (1/n) Σ_i ||stop_grad(Â_i) - π(s_i)||²       # Eq. (3)
+        φ^T ← τφ + (1-τ)φ^T;  θ_k^T ← τθ_k + (1-τ)θ_k^T                  # Eqs. (6), (7)
+
+Choices where the paper is loose, all standard:
+
+* Eq. (5) prints Q(S, π(S); θ) inside the critic loss; Alg. 2 step 8 and Alg. A3 steps
+  13-14 use the replayed action, Q(S, A; θ), which is the TD loss we implement.
+* TD3's smoothed target action A' is clipped to the action box (V ∈ [0, 1], ω ∈ [-1, 1]);
+  Alg. A3 step 11 omits it, TD3 (Fujimoto et al.) has it. The noise is N(μ = 0, σ̄) per
+  sample and action dimension (Table A4: μ = 0).
+* A terminal transition (goal, collision) does not bootstrap; a timeout does (the
+  paper's Q̂ has no (1 - terminal) factor but its episodes are finite).
+* Â is not clipped to the action box: Eq. (2) does not, and the actor's sigmoid/tanh head
+  keeps π(S) inside the box whatever Â is.
+* Twin critics are one params tree with a leading axis (``networks.init_critics``), one
+  loss (the sum of the per-critic losses, so each critic gets its own gradient) and one
+  Adam. Q_1 (index 0) drives the actor (Alg. A3 step 17) and the AfP mask (step 19).
+* Learning rates are traced (``HParams``), so the Adam transformations are built inside
+  the step functions; their state structure does not depend on the learning rate.
+
+Metrics (flat dicts of scalars, the same keys for every algorithm): ``critic_step`` gives
+``loss/critic`` (mean over critics), ``q/mean`` (Q(S, A) over critics and batch),
+``q/target`` (mean Q̂) and ``grad_norm/critic``; ``actor_step`` gives ``loss/actor``,
+``advisor/replaced`` (fraction of the batch where AfP replaced Â; 0 without AfP and for
+DDPG/TD3) and ``grad_norm/actor``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from advisor_jax.config import AgentConfig, HParams
+from advisor_jax.networks import Actor, Critic, apply_critics, init_actor, init_critics
+from advisor_jax.replay import Transition
+from advisor_jax.runner import spec
+
+QFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs [..., 20], action [..., 2]) -> Q [...]
+Metrics = dict[str, jax.Array]
+
+
+@struct.dataclass
+class LearnerState:
+    actor: Any  # φ
+    critic: Any  # θ, stacked on a leading axis of n_critics (1 or 2)
+    target_actor: Any  # φ^T
+    target_critic: Any  # θ^T, same layout as ``critic``
+    actor_opt: Any  # optax Adam state of φ
+    critic_opt: Any  # optax Adam state of θ
+    critic_updates: jax.Array  # int32, t of Alg. A3
+    actor_updates: jax.Array  # int32
+
+
+class Learner(NamedTuple):
+    init: Callable[[jax.Array], LearnerState]
+    """(key) -> LearnerState: He init, targets = copies (Alg. 2 step 4, Alg. A3 step 5)."""
+    q_select: Callable[[Any, jax.Array, jax.Array], jax.Array]
+    """(critic params, obs [..., 20], action [..., 2]) -> Q [...] for the Eq. (1) selector:
+    the min over the critics (Alg. A2 steps 11-12); Q itself for one critic."""
+    critic_step: Callable[[LearnerState, Transition, jax.Array, HParams], tuple[Any, Metrics]]
+    """(state, batch, key, hp) -> (state, metrics): one critic update."""
+    actor_step: Callable[[LearnerState, Transition, HParams], tuple[Any, Metrics]]
+    """(state, batch, hp) -> (state, metrics): one actor update and the soft update of all
+    targets."""
+
+
+# Pure pieces ----------------------------------------------------------------------------
+
+
+def soft_update(target: Any, online: Any, tau: jax.Array | float) -> Any:
+    """Eqs. (6), (7): target ← τ·online + (1 - τ)·target, leaf by leaf."""
+    return jax.tree.map(lambda t, o: tau * o + (1.0 - tau) * t, target, online)
+
+
+def clip_action(action: jax.Array) -> jax.Array:
+    """Clips ``[..., 2]`` actions to the box V ∈ [0, 1], ω ∈ [-1, 1] (``runner/spec.py``)."""
+    low = jnp.asarray(spec.ACTION_LOW, action.dtype)
+    high = jnp.asarray(spec.ACTION_HIGH, action.dtype)
+    return jnp.clip(action, low, high)
+
+
+def smoothed_target_actions(
+    key: jax.Array,
+    target_actions: jax.Array,
+    sigma: jax.Array | float,
+    noise_clip: jax.Array | float,
+) -> jax.Array:
+    """TD3 target smoothing (Alg. A3 steps 10-11): clip(π^T(S') + clip(σ̄ξ, -c, c), box)."""
+    noise = sigma * jax.random.normal(key, target_actions.shape, target_actions.dtype)
+    return clip_action(target_actions + jnp.clip(noise, -noise_clip, noise_clip))
+
+
+def critic_targets(
+    reward: jax.Array, terminal: jax.Array, next_q: jax.Array, gamma: jax.Array | float
+) -> jax.Array:
+    """Q̂ = R + γ(1 - terminal)·min_k next_q[k] (Eq. 4; Alg. A3 step 12).
+
+    Args:
+      reward, terminal: [n].
+      next_q: [n_critics, n] target critics at (S', A'); the min over one critic is itself.
+    """
+    return reward + gamma * (1.0 - terminal) * jnp.min(next_q, axis=0)
+
+
+def critic_losses(q: jax.Array, targets: jax.Array) -> jax.Array:
+    """Per-critic TD loss (1/n) Σ_i (Q̂_i - Q_k(s_i, a_i))²: q [n_critics, n] → [n_critics]."""
+    return jnp.mean(jnp.square(jax.lax.stop_gradient(targets) - q), axis=-1)
+
+
+def addpg_actor_targets(
+    q_fn: QFn,
+    obs: jax.Array,
+    actor_actions: jax.Array,
+    advisor_actions: jax.Array,
+    beta: jax.Array | float,
+    advisor_policy: bool,
+) -> tuple[jax.Array, jax.Array]:
+    """Â of Eq. (2) with the AfP replacement (Alg. 2 steps 9-13): ``(a_hat, replaced)``.
+
+    Args:
+      q_fn: Q_1 with its params bound, (obs [n, 20], action [n, 2]) -> [n].
+      obs: [n, 20]; actor_actions: [n, 2] = π(S); advisor_actions: [n, 2] = A_adv.
+      beta: β of Eq. (2).
+      advisor_policy: static; AfP on (steps 11-13) or off (plain ADDPG).
+
+    Returns:
+      a_hat [n, 2] (no gradient flows through it) and replaced [n] bool, the samples where
+      Q(s_i, a_adv,i) > Q(s_i, â_i) and â_i was replaced by a_adv,i (all False without AfP).
+    """
+    actor_actions = jax.lax.stop_gradient(actor_actions)
+    # Samples are independent, so the gradient of the batch sum is the per-sample ∇_a Q.
+    grad_q = jax.grad(lambda a: jnp.sum(q_fn(obs, a)))(actor_actions)  # [n, 2]
+    a_hat = actor_actions + beta * grad_q
+    if not advisor_policy:
+        return a_hat, jnp.zeros(a_hat.shape[:-1], bool)
+    # One critic call on [2, n] rather than two on [n].
+    q_hat, q_adv = q_fn(jnp.stack([obs, obs]), jnp.stack([a_hat, advisor_actions]))
+    replaced = q_adv > q_hat  # [n]
+    a_hat = jnp.where(replaced[:, None], advisor_actions, a_hat)
+    return jax.lax.stop_gradient(a_hat), replaced
+
+
+def mse_actor_loss(actions: jax.Array, a_hat: jax.Array) -> jax.Array:
+    """Eq. (3): (1/n) Σ_i ||stop_grad(â_i) - π(s_i)||² (sum over the 2 action dimensions)."""
+    return jnp.mean(jnp.sum(jnp.square(jax.lax.stop_gradient(a_hat) - actions), axis=-1))
+
+
+def dpg_actor_loss(q_fn: QFn, obs: jax.Array, actions: jax.Array) -> jax.Array:
+    """Deterministic policy gradient loss -(1/n) Σ_i Q(s_i, π(s_i)) (DDPG, TD3)."""
+    return -jnp.mean(q_fn(obs, actions))
+
+
+def _adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
+    # Built per call so the learning rate can be a traced (vmapped) hyperparameter.
+    return optax.adam(learning_rate)
+
+
+def _first_critic(critic_params: Any) -> Any:
+    return jax.tree.map(lambda x: x[0], critic_params)
+
+
+# The learner ----------------------------------------------------------------------------
+
+
+def make_learner(cfg: AgentConfig) -> Learner:
+    """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able)."""
+    if not isinstance(cfg, AgentConfig):
+        raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")
+    actor = Actor(hidden=tuple(cfg.actor_hidden))
+    critic = Critic(state_hidden=cfg.critic_state_hidden, hidden=tuple(cfg.critic_hidden))
+
+    def init(key: jax.Array) -> LearnerState:
+        key_actor, key_critic = jax.random.split(key)
+        actor_params = init_actor(actor, key_actor)
+        critic_params = init_critics(critic, key_critic, cfg.n_critics)
+        return LearnerState(
+            actor=actor_params,
+            critic=critic_params,
+            # Copies, not aliases: an eager init would otherwise hand the same buffers to
+            # online and target, and donating the state to a jitted step would then fail.
+            target_actor=jax.tree.map(jnp.copy, actor_params),
+            target_critic=jax.tree.map(jnp.copy, critic_params),
+            # Adam's state (count, μ, ν) does not depend on the learning rate.
+            actor_opt=_adam(1.0).init(actor_params),
+            critic_opt=_adam(1.0).init(critic_params),
+            critic_updates=jnp.int32(0),
+            actor_updates=jnp.int32(0),
+        )
+
+    def q_select(critic_params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
+        return jnp.min(apply_critics(critic, critic_params, obs, action), axis=0)
+
+    def critic_step(
+        state: LearnerState, batch: Transition, key: jax.Array, hp: HParams
+    ) -> tuple[LearnerState, Metrics]:
+        next_actions = actor.apply(state.target_actor, batch.next_obs)  # [n, 2]
+        if cfg.twin:
+            next_actions = smoothed_target_actions(
+                key, next_actions, hp.target_noise, hp.target_noise_clip
+            )
+        next_q = apply_critics(critic, state.target_critic, batch.next_obs, next_actions)
+        targets = critic_targets(batch.reward, batch.terminal, next_q, hp.gamma)  # [n]
+
+        def loss_fn(params):
+            q = apply_critics(critic, params, batch.obs, batch.action)  # [n_critics, n]
+            losses = critic_losses(q, targets)
+            return jnp.sum(losses), (losses, q)
+
+        (_, (losses, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.critic)
+        updates, critic_opt = _adam(hp.lr_critic).update(grads, state.critic_opt, state.critic)
+        new_state = state.replace(
+            critic=optax.apply_updates(state.critic, updates),
+            critic_opt=critic_opt,
+            critic_updates=state.critic_updates + 1,
+        )
+        metrics = {
+            "loss/critic": jnp.mean(losses),
+            "q/mean": jnp.mean(q),
+            "q/target": jnp.mean(targets),
+            "grad_norm/critic": optax.global_norm(grads),
+        }
+        return new_state, metrics
+
+    def actor_step(
+        state: LearnerState, batch: Transition, hp: HParams
+    ) -> tuple[LearnerState, Metrics]:
+        q1_params = _first_critic(state.critic)
+
+        def q1(obs, action):
+            return critic.apply(q1_params, obs, action)
+
+        # One actor forward; the loss is differentiated w.r.t. the actions and pulled back.
+        actions, pullback = jax.vjp(lambda p: actor.apply(p, batch.obs), state.actor)
+        if cfg.advisor_target:
+            a_hat, replaced = addpg_actor_targets(
+                q1, batch.obs, actions, batch.advisor_action, hp.beta, cfg.advisor_policy
+            )
+            loss, dloss = jax.value_and_grad(mse_actor_loss)(actions, a_hat)
+        else:
+            replaced = jnp.zeros(actions.shape[:-1], bool)
+            loss, dloss = jax.value_and_grad(lambda a: dpg_actor_loss(q1, batch.obs, a))(actions)
+        (grads,) = pullback(dloss)
+        updates, actor_opt = _adam(hp.lr_actor).update(grads, state.actor_opt, state.actor)
+        actor_params = optax.apply_updates(state.actor, updates)
+        new_state = state.replace(
+            actor=actor_params,
+            actor_opt=actor_opt,
+            target_actor=soft_update(state.target_actor, actor_params, hp.tau),
+            target_critic=soft_update(state.target_critic, state.critic, hp.tau),
+            actor_updates=state.actor_updates + 1,
+        )
+        metrics = {
+            "loss/actor": loss,
+            "advisor/replaced": jnp.mean(replaced.astype(jnp.float32)),
+            "grad_norm/actor": optax.global_norm(grads),
+        }
+        return new_state, metrics
+
+    return Learner(init=init, q_select=q_select, critic_step=critic_step, actor_step=actor_step)

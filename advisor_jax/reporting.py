@@ -1,0 +1,251 @@
+"""Host-side reporting of a training run: progress, per-episode metrics, files, plots, tables.
+
+Per-episode metrics (paper §6): outcome, length, return, reward per step (Fig. 8), collision
+speed (Fig. 9, Table 3), the actor's firing rate and the expected maximum firing rate of
+Eq. (11) (Fig. 10, window w = 30 as in the figure).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+import envs
+from advisor_jax.fileio import atomic_write_bytes, atomic_write_npz
+from advisor_jax.selector import expected_max_firing_rate
+
+FIRING_WINDOW = 30  # w of Eq. (11), as in Fig. 10
+METRIC_NAMES = (
+    "outcome",
+    "length",
+    "episode_return",
+    "reward_per_step",
+    "collision_speed",
+    "firing_rate",
+    "expected_max_firing_rate",
+)
+
+
+class _Bar:
+    def __init__(self, progress: Progress | None, task):
+        self.progress, self.task = progress, task
+
+    def update(self, completed: int, line: dict) -> None:
+        if self.progress is None:
+            return
+        info = f"step {line['step']:,}  {line['steps_per_second']:,.0f} steps/s"
+        if not math.isnan(line.get("loss/critic", math.nan)):
+            info += f"  critic loss {line['loss/critic']:.3g}"
+        self.progress.update(self.task, completed=completed, info=info)
+
+
+@contextlib.contextmanager
+def training_progress(console: Console, total_episodes: int, disable: bool = False):
+    """A rich progress bar over the episodes of all agents."""
+    if disable:
+        yield _Bar(None, None)
+        return
+    columns = (
+        TextColumn("[bold]training"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("episodes"),
+        TimeElapsedColumn(),
+        TextColumn("{task.fields[info]}"),
+    )
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task("train", total=total_episodes, info="compiling…")
+        yield _Bar(progress, task)
+
+
+def chunk_line(step: int, seconds: float, episodes: np.ndarray, metrics: Mapping) -> dict:
+    """One JSON line per chunk: progress and mean losses over agents and steps."""
+    line = {
+        "step": int(step),
+        "seconds": round(seconds, 3),
+        "steps_per_second": step * len(episodes) / max(seconds, 1e-9),
+        "episodes_mean": float(np.mean(episodes)),
+        "episodes_min": int(np.min(episodes)),
+    }
+    for name, value in metrics.items():
+        if name.startswith("train/"):
+            continue
+        value = np.asarray(value, np.float64)
+        line[name] = float(np.nanmean(value)) if np.isfinite(value).any() else math.nan
+    return line
+
+
+def divergence_message(agent: Mapping, grid: Mapping) -> str:
+    swept = ", ".join(f"{k}={agent[k]:g}" for k in grid)
+    desc = f"seed {agent['seed']}" + (f", {swept}" if swept else "")
+    return (
+        f"[yellow]warning:[/] agent {agent['index']} ({desc}) produced a non-finite loss; "
+        "it is frozen and excluded from the results, the other agents continue"
+    )
+
+
+def episode_metrics(state, hp, n_total: int) -> dict[str, np.ndarray]:
+    """Per agent × episode metrics from the episode logs ([agents, N_total] each)."""
+    log = jax.device_get(state.log)
+    outcome = np.asarray(log.outcome)
+    length = np.asarray(log.length)
+    played = outcome > 0
+    safe = np.maximum(length, 1)
+    episode = np.arange(n_total)[None, :]
+    eps_start = np.asarray(hp.eps_start)[:, None]
+    eps_decay = np.asarray(hp.eps_decay)[:, None]
+    n_t = np.asarray(hp.advisor_episodes)[:, None]
+    expected = np.asarray(expected_max_firing_rate(episode, eps_start, eps_decay, FIRING_WINDOW))
+    expected = np.where(episode > n_t, 1.0, np.clip(expected, 0.0, 1.0))
+    return {
+        "outcome": outcome,
+        "length": length,
+        "episode_return": np.where(played, log.episode_return, np.nan),
+        "reward_per_step": np.where(played, log.episode_return / safe, np.nan),
+        "collision_speed": np.where(outcome == envs.COLLISION, log.collision_speed, np.nan),
+        "firing_rate": np.where(played, log.actor_steps / safe, np.nan),
+        "expected_max_firing_rate": np.broadcast_to(expected, outcome.shape).astype(np.float32),
+        "diverged": np.asarray(state.diverged),
+        "env_steps": np.asarray(state.env_steps),
+    }
+
+
+def write_metrics(out_dir: Path, metrics: Mapping[str, np.ndarray], agents: Sequence) -> None:
+    """metrics.npz and episodes.csv (one row per agent and played episode)."""
+    atomic_write_npz(out_dir / "metrics.npz", **metrics)
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(["agent", "seed", "episode", "outcome", *METRIC_NAMES[1:]])
+    names = envs.OUTCOME_NAMES
+    for a, agent in enumerate(agents):
+        for e in np.flatnonzero(metrics["outcome"][a] > 0):
+            row = [a, agent["seed"], e + 1, names[int(metrics["outcome"][a, e])]]
+            row += [_fmt(metrics[m][a, e]) for m in METRIC_NAMES[1:]]
+            writer.writerow(row)
+    atomic_write_bytes(out_dir / "episodes.csv", buf.getvalue().encode())
+
+
+def _fmt(x) -> str:
+    x = float(x)
+    return "" if math.isnan(x) else f"{x:.6g}"
+
+
+def group_agents(agents: Sequence[Mapping], grid: Mapping) -> dict[tuple, list[int]]:
+    """Agent indices grouped by grid point (seeds pooled)."""
+    groups: dict[tuple, list[int]] = {}
+    for agent in agents:
+        groups.setdefault(tuple(agent[k] for k in grid), []).append(agent["index"])
+    return groups
+
+
+def group_label(key: tuple, grid: Mapping, default: str) -> str:
+    return ", ".join(f"{k}={v:g}" for k, v in zip(grid, key, strict=True)) or default
+
+
+def moving_average(x: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average along the last axis, NaN-aware (NaN where no data yet)."""
+    valid = np.isfinite(x)
+    csum = np.cumsum(np.where(valid, x, 0.0), axis=-1)
+    ccount = np.cumsum(valid, axis=-1)
+    pad = np.zeros(x.shape[:-1] + (1,))
+    csum, ccount = np.concatenate([pad, csum], -1), np.concatenate([pad, ccount], -1)
+    idx = np.arange(x.shape[-1])
+    lo = np.maximum(idx + 1 - window, 0)
+    total = csum[..., idx + 1] - csum[..., lo]
+    count = ccount[..., idx + 1] - ccount[..., lo]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def plot_learning_curves(path: Path, metrics, agents, grid, cfg) -> None:
+    """Fig. 8-style reward per step and success, moving average, mean ± std over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_total = metrics["outcome"].shape[1]
+    window = max(1, min(150, n_total // 5))
+    success = np.where(metrics["outcome"] > 0, metrics["outcome"] == envs.GOAL, np.nan)
+    panels = (
+        ("reward per step", metrics["reward_per_step"]),
+        ("success rate", success.astype(np.float64)),
+        ("actor firing rate", metrics["firing_rate"]),
+    )
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), constrained_layout=True)
+    episodes = np.arange(1, n_total + 1)
+    keep = ~metrics["diverged"]
+    for key, members in group_agents(agents, grid).items():
+        members = [m for m in members if keep[m]]
+        if not members:
+            continue
+        label = group_label(key, grid, cfg.agent.name)
+        for ax, (_, values) in zip(axes, panels, strict=True):
+            curves = moving_average(values[members].astype(np.float64), window)
+            mean = np.nanmean(curves, axis=0) if np.isfinite(curves).any() else curves[0]
+            std = np.nanstd(curves, axis=0) if len(members) > 1 else np.zeros_like(mean)
+            (line,) = ax.plot(episodes, mean, label=f"{label} (n={len(members)})")
+            ax.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+    for ax, (title, _) in zip(axes, panels, strict=True):
+        ax.set_xlabel("episode")
+        ax.set_title(f"{title} (moving average, w={window})")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{cfg.agent.name} in '{cfg.arena}': mean ± std over seeds")
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def mean_ci95(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and half-width of a Student-t 95 % confidence interval (NaN-free input)."""
+    x = np.asarray([v for v in values if v is not None and np.isfinite(v)], np.float64)
+    if x.size == 0:
+        return math.nan, math.nan
+    if x.size == 1:
+        return float(x[0]), math.nan
+    from scipy import stats
+
+    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
+    return float(x.mean()), float(half)
+
+
+def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) -> None:
+    """Per grid point: final training success and evaluation success, mean ± 95 % CI."""
+    agents = summary["agents"]
+    evaluation = summary.get("evaluation") or {}
+    table = Table(title=f"{summary['agent']}: {len(agents)} agents")
+    table.add_column("agents")
+    table.add_column("n", justify="right")
+    table.add_column("train success (last 10%)", justify="right")
+    for arena in evaluation:
+        table.add_column(f"eval success: {arena}", justify="right")
+    n_total = metrics["outcome"].shape[1]
+    tail = max(1, n_total // 10)
+    for key, members in group_agents(agents, grid).items():
+        ok = [m for m in members if not metrics["diverged"][m]]
+        last = metrics["outcome"][ok, -tail:]
+        train = [float(np.mean(row[row > 0] == envs.GOAL)) for row in last if (row > 0).any()]
+        cells = [group_label(key, grid, summary["agent"]), f"{len(ok)}/{len(members)}"]
+        cells.append(_pct(*mean_ci95(train)))
+        for arena in evaluation:
+            cells.append(_pct(*mean_ci95([evaluation[arena]["success"][m] for m in ok])))
+        table.add_row(*cells)
+    console.print(table)
+
+
+def _pct(mean: float, half: float) -> str:
+    if math.isnan(mean):
+        return "–"
+    return f"{100 * mean:.1f} %" + ("" if math.isnan(half) else f" ± {100 * half:.1f}")

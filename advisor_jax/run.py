@@ -1,0 +1,179 @@
+"""Host loop: trains a population of agents in jitted chunks, then evaluates and saves it.
+
+    run_training(cfg, HParams(), grid={"advisor_episodes": [100, 250]}, seeds=[0, 1], out_dir=...)
+
+The population (grid × seeds) is one ``jit(vmap(chunk))``: one compile however many agents.
+Between chunks the host shows progress, reports agents whose losses went non-finite (they
+are frozen and marked, the others carry on untouched), and writes an orbax checkpoint of
+the full state (parameters, targets, optimisers, buffers, RNG, counters) every few chunks so
+that ``resume=True`` continues an interrupted run. At the end it writes, into ``out_dir``:
+
+    run.json          config, agents (seed + hyperparameters), status, timings, device
+    params/           orbax: final actor, critics and targets of every agent (leading axis)
+    metrics.npz       per agent × episode: outcome, length, return, reward per step,
+                      collision speed, actor firing rate, Eq. (11) expected maximum
+    episodes.csv      the same, one row per (agent, episode)
+    eval.json         deterministic-actor evaluation per agent and arena
+    learning_curve.png, train_log.jsonl
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import functools
+import json
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from rich.console import Console
+
+from advisor_jax import __version__, checkpoint, reporting
+from advisor_jax.config import HParams, TrainConfig
+from advisor_jax.evaluation_runs import evaluate_population
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.sweep import agent_keys, build_population
+from advisor_jax.train import make_train
+
+
+def run_training(
+    cfg: TrainConfig,
+    base_hp: HParams,
+    grid: Mapping[str, Sequence[float]],
+    seeds: Sequence[int],
+    out_dir: str | Path,
+    *,
+    eval_episodes: int = 100,
+    eval_arenas: Sequence[str] = ("training", "validation"),
+    checkpoint_every: int = 10,
+    resume: bool = False,
+    progress: bool = True,
+    console: Console | None = None,
+) -> dict:
+    """Trains, evaluates and saves a population; returns the summary written to run.json."""
+    console = console or Console(stderr=True)
+    out_dir = Path(out_dir)
+    run_file = out_dir / "run.json"
+    if run_file.exists() and not resume:
+        raise ValueError(
+            f"{out_dir} already holds a run; pass --resume to continue it or choose another --out"
+        )
+    if eval_episodes < 0:
+        raise ValueError(f"eval_episodes must be >= 0, got {eval_episodes}")
+    hp, agents = build_population(base_hp, grid, seeds)
+    trainer, init_fn, chunk_fn = population_functions(cfg)
+    keys = agent_keys([a["seed"] for a in agents])
+
+    summary = {
+        "advisor_jax_version": __version__,
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "device": str(jax.devices()[0].device_kind),
+        "config": dataclasses.asdict(cfg),
+        "agent": cfg.agent.name,
+        "grid": {k: list(map(float, v)) for k, v in grid.items()},
+        "agents": agents,
+        "status": "running",
+    }
+    step = 0
+    if resume:
+        if not run_file.exists():
+            raise ValueError(f"nothing to resume: {run_file} does not exist")
+        saved = json.loads(run_file.read_text())
+        if saved.get("config") != json.loads(json.dumps(summary["config"])) or saved.get(
+            "agents"
+        ) != json.loads(json.dumps(agents)):
+            raise ValueError(f"cannot resume {out_dir}: its config or agents differ from these")
+        abstract = jax.eval_shape(init_fn, keys)
+        state, step = checkpoint.restore_latest(out_dir / "checkpoints", abstract)
+        summary["created"] = saved.get("created", summary["created"])
+        console.print(f"resuming {out_dir} at environment step {step}")
+    else:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        state = init_fn(keys)
+    atomic_write_json(run_file, summary)
+
+    n_agents, n_total = len(agents), cfg.episodes
+    reported = np.zeros(n_agents, bool)
+    log_path = out_dir / "train_log.jsonl"
+    t_start = time.perf_counter()
+    chunks = 0
+    try:
+        with reporting.training_progress(console, n_agents * n_total, disable=not progress) as bar:
+            while step < trainer.max_steps:
+                state, metrics = chunk_fn(state, hp, jnp.int32(step))
+                step += cfg.chunk_steps
+                chunks += 1
+                episodes = np.minimum(np.asarray(state.episodes), n_total)
+                diverged = np.asarray(state.diverged)
+                for i in np.flatnonzero(diverged & ~reported):
+                    console.print(reporting.divergence_message(agents[i], grid))
+                reported |= diverged
+                line = reporting.chunk_line(step, time.perf_counter() - t_start, episodes, metrics)
+                with open(log_path, "a") as f:
+                    f.write(json.dumps(line) + "\n")
+                bar.update(int(episodes.sum()), line)
+                if np.all((episodes >= n_total) | diverged):
+                    break
+                if checkpoint_every and chunks % checkpoint_every == 0:
+                    checkpoint.save_step(out_dir / "checkpoints", step, state)
+    except KeyboardInterrupt:
+        checkpoint.save_step(out_dir / "checkpoints", step, state)
+        summary.update(status="interrupted", env_steps_per_agent=step)
+        atomic_write_json(run_file, summary)
+        console.print(f"interrupted; checkpoint saved, continue with --resume (--out {out_dir})")
+        raise
+    train_seconds = time.perf_counter() - t_start
+
+    checkpoint.save_tree(out_dir / "params", _final_params(state))
+    metrics = reporting.episode_metrics(state, hp, n_total)
+    reporting.write_metrics(out_dir, metrics, agents)
+    evaluation = {}
+    if eval_episodes:
+        evaluation = evaluate_population(
+            state.learner.actor,
+            trainer.policy_apply,
+            arenas=eval_arenas,
+            episodes=eval_episodes,
+            max_episode_steps=cfg.max_episode_steps,
+            key=jax.random.PRNGKey(10_000 + int(seeds[0])),
+            diverged=np.asarray(state.diverged),
+        )
+        atomic_write_json(out_dir / "eval.json", evaluation)
+    reporting.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
+
+    diverged = np.asarray(state.diverged)
+    summary.update(
+        status="finished",
+        train_seconds=round(train_seconds, 2),
+        env_steps_per_agent=[int(s) for s in np.asarray(state.env_steps)],
+        episodes_completed=[int(e) for e in np.minimum(np.asarray(state.episodes), n_total)],
+        diverged=[int(i) for i in np.flatnonzero(diverged)],
+        evaluation=evaluation,
+    )
+    atomic_write_json(run_file, summary)
+    checkpoint.save_step(out_dir / "checkpoints", step, state)
+    reporting.print_summary(console, summary, metrics, grid)
+    return summary
+
+
+@functools.lru_cache(maxsize=8)
+def population_functions(cfg: TrainConfig):
+    """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``, compiled once per process."""
+    trainer = make_train(cfg)
+    init_fn = jax.jit(jax.vmap(trainer.init))
+    chunk_fn = jax.jit(jax.vmap(trainer.chunk, in_axes=(0, 0, None)), donate_argnums=0)
+    return trainer, init_fn, chunk_fn
+
+
+def _final_params(state) -> dict:
+    learner = state.learner
+    return {
+        "actor": learner.actor,
+        "critic": learner.critic,
+        "target_actor": learner.target_actor,
+        "target_critic": learner.target_critic,
+    }

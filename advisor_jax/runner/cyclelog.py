@@ -1,0 +1,104 @@
+"""JSON-lines log of the control loop: one header, one record per cycle, one footer.
+
+Schema (every line is one JSON object with a ``type``)::
+
+    {"type": "header", "schema": 1, "policy_dir", "weights_sha256", "config_hash", "goal",
+     "observation": ObservationConfig fields, "drive": Drive.describe(), "loop": LoopConfig
+     fields, "created", "numpy", "argv"}
+    {"type": "cycle", "i", "t" (loop clock, s), "wall" (time.time()), "ran" (the controller
+     ran; false when a source failed), "state" ("run" | "stop" | "done"), "reason", "message",
+     "scan": {"stamp", "n", "points"?}, "pose": {"x", "y", "theta", "t", "stamp"},
+     "obs" [20], "action" [V, ω], "physical" [v m/s, w rad/s], "command" {"kind", ...},
+     "io_error", "compute_ms"}
+    {"type": "footer", "cycles", "stops" {reason: count}, "overruns", "end"}
+
+A scan's ``points`` (the raw RPLIDAR triples) are written the first time the loop uses that
+scan; later cycles that reuse it carry only its ``stamp``. Floats are written with Python's
+shortest round-trip repr, so a replay reads back bit-identical inputs and float32 values.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from typing import IO, Any
+
+import numpy as np
+
+from advisor_jax.runner.errors import ReplayError
+from advisor_jax.runner.observation import Pose, Scan
+
+LOG_SCHEMA = 1
+
+
+def floats(values: Any) -> list[float] | None:
+    """float32/float64 array → list of Python floats (exact), or None."""
+    return None if values is None else [float(v) for v in np.asarray(values).reshape(-1)]
+
+
+def encode_scan(scan: Scan | None, with_points: bool) -> dict | None:
+    if scan is None:
+        return None
+    out: dict[str, Any] = {"stamp": float(scan.stamp), "n": int(len(scan.points))}
+    if with_points:
+        try:
+            out["points"] = np.asarray(scan.points, dtype=np.float64).tolist()
+        except (TypeError, ValueError):
+            out["points"] = repr(scan.points)  # unusable scan: logged for the human reader
+    return out
+
+
+def encode_pose(pose: Pose | None) -> dict | None:
+    if pose is None:
+        return None
+    return {"x": pose.x, "y": pose.y, "theta": pose.theta, "t": pose.t, "stamp": pose.stamp}
+
+
+def decode_pose(rec: dict | None) -> Pose | None:
+    if rec is None:
+        return None
+    return Pose(rec["x"], rec["y"], rec["theta"], rec["t"], rec["stamp"])
+
+
+class JsonlLog:
+    """Line-buffered JSONL writer; each line is flushed so a crash loses at most one cycle."""
+
+    def __init__(self, path: str | os.PathLike | IO[str]):
+        if hasattr(path, "write"):
+            self._f, self._own = path, False
+        else:
+            self._f, self._own = open(path, "w", encoding="utf-8", buffering=1), True
+        self.path = getattr(self._f, "name", None)
+
+    def write(self, record: dict) -> None:
+        self._f.write(json.dumps(record, allow_nan=True, separators=(",", ":")) + "\n")
+        self._f.flush()
+
+    def close(self) -> None:
+        if self._own and not self._f.closed:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+
+
+def read_log(path: str | os.PathLike) -> tuple[dict, Iterator[dict]]:
+    """(header, iterator over cycle records) of a loop log; ReplayError if unreadable."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = [line for line in f if line.strip()]
+    except OSError as e:
+        raise ReplayError(f"{path}: cannot read log ({e.strerror or e})") from None
+    records = []
+    for number, line in enumerate(lines, 1):
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            if number == len(lines):
+                break  # the last line of a log cut off by a crash or power loss
+            raise ReplayError(f"{path}:{number}: not JSON ({e})") from None
+    if not records or records[0].get("type") != "header":
+        raise ReplayError(f"{path}: first line is not a loop log header")
+    if records[0].get("schema") != LOG_SCHEMA:
+        raise ReplayError(f"{path}: log schema {records[0].get('schema')!r} is not {LOG_SCHEMA}")
+    return records[0], (r for r in records[1:] if r.get("type") == "cycle")

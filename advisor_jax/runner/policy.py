@@ -1,0 +1,326 @@
+"""Loading, verifying and running an exported actor with numpy only (paper §5.3, Fig. 4a).
+
+An export directory (written by ``advisor_jax.export``) holds::
+
+    policy.json   metadata: schema_version, layers, heads, observation/sensor layout,
+                  control scaling, env and config, config_hash, weights_sha256, golden_sha256
+    policy.npz    float32 "<layer>/kernel" [in, out] (flax layout) and "<layer>/bias" [out]
+    golden.npz    obs [N, 20] and the JIT-compiled JAX actor's actions [N, 2]
+
+``load_policy`` refuses to return a policy unless every check passes: schema version, sha256 of
+both npz files, config hash, layer names/shapes/dtypes against the json, finite weights, the
+observation and zone layout against ``spec.py``, and the numpy MLP reproducing every golden
+action within ``GOLDEN_TOLERANCE`` (max abs). The forward pass is the actor's maths::
+
+    x = obs;  x = relu(x @ W_i + b_i) for each hidden layer;  z = x @ W_head + b_head
+    action = [sigmoid(z_0), tanh(z_1)]          # (V, ω), normalised
+
+computed in float32, for one observation [20] or a batch [N, 20].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import math
+import os
+import zipfile
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from advisor_jax.runner import spec
+from advisor_jax.runner.errors import PolicyError
+
+SCHEMA_VERSION = 1
+POLICY_JSON = "policy.json"
+POLICY_NPZ = "policy.npz"
+GOLDEN_NPZ = "golden.npz"
+POLICY_ONNX = "policy.onnx"
+GOLDEN_TOLERANCE = 1e-5
+HEAD_ACTIVATIONS = ("sigmoid", "tanh")  # (V, ω), paper §5.3
+_SIGMOID_CLIP = 80.0  # |z| beyond this saturates sigmoid in float32; avoids exp overflow
+
+
+def canonical_json(obj: Any) -> bytes:
+    """Canonical JSON bytes (sorted keys, no spaces, ASCII, no NaN) used for hashing."""
+    return json.dumps(
+        obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False
+    ).encode("ascii")
+
+
+def config_hash(config_meta: dict, env_meta: dict) -> str:
+    """sha256 of the canonical JSON of ``{"config": config_meta, "env": env_meta}``."""
+    return hashlib.sha256(canonical_json({"config": config_meta, "env": env_meta})).hexdigest()
+
+
+def sha256_bytes(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+@dataclasses.dataclass(frozen=True)
+class Layer:
+    """One dense layer: ``x @ kernel + bias``; kernel [in, out] float32, bias [out]."""
+
+    name: str
+    kernel: np.ndarray
+    bias: np.ndarray
+
+
+def mlp_forward(layers: Sequence[Layer], obs: np.ndarray) -> np.ndarray:
+    """Actor forward pass in float32: [..., 20] → [..., 2] = (V ∈ [0, 1], ω ∈ [-1, 1])."""
+    x = obs
+    for layer in layers[:-1]:
+        x = x @ layer.kernel  # new array: never writes into the caller's obs
+        x += layer.bias
+        np.maximum(x, 0.0, out=x)
+    head = layers[-1]
+    z = x @ head.kernel
+    z += head.bias
+    if z.ndim == 1:  # one observation (the control loop): two scalars, no array round trips
+        v = 1.0 / (1.0 + math.exp(-min(max(float(z[0]), -_SIGMOID_CLIP), _SIGMOID_CLIP)))
+        return np.array((v, math.tanh(float(z[1]))), dtype=np.float32)
+    out = np.empty_like(z)
+    out[..., 0] = 1.0 / (1.0 + np.exp(-np.clip(z[..., 0], -_SIGMOID_CLIP, _SIGMOID_CLIP)))
+    out[..., 1] = np.tanh(z[..., 1])
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Policy:
+    """A verified actor plus its export metadata (``meta`` is policy.json)."""
+
+    layers: tuple[Layer, ...]
+    meta: dict
+    directory: str
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Normalised action (V, ω): [20] → [2] or [N, 20] → [N, 2], float32.
+
+        Raises PolicyError on a wrong shape or a non-finite observation.
+        """
+        x = np.asarray(obs, dtype=np.float32)
+        if x.ndim not in (1, 2) or x.shape[-1] != spec.OBS_SIZE:
+            raise PolicyError(
+                f"observation must have shape [{spec.OBS_SIZE}] or [N, {spec.OBS_SIZE}], "
+                f"got {list(x.shape)}"
+            )
+        if not np.isfinite(x).all():
+            bad = np.flatnonzero(~np.isfinite(x.reshape(-1, spec.OBS_SIZE)).all(axis=0))
+            names = ", ".join(spec.OBS_NAMES[i] for i in bad)
+            raise PolicyError(f"observation has non-finite values in {names}")
+        return mlp_forward(self.layers, x)
+
+    @property
+    def v_max(self) -> float:
+        return float(self.meta["control"]["v_max"])
+
+    @property
+    def omega_max(self) -> float:
+        return float(self.meta["control"]["omega_max"])
+
+    @property
+    def dt(self) -> float:
+        return float(self.meta["control"]["dt"])
+
+    @property
+    def max_range(self) -> float:
+        return float(self.meta["observation"]["max_range"])
+
+    @property
+    def range_offset(self) -> float:
+        return float(self.meta["sensors"]["lidar_range_offset"])
+
+    @property
+    def env(self) -> dict:
+        return self.meta["env"]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float] | None:
+        b = self.env.get("bounds")
+        return None if b is None else tuple(float(v) for v in b)
+
+    @property
+    def weights_sha256(self) -> str:
+        return self.meta["weights_sha256"]
+
+
+def _fail(path: str, problem: str) -> PolicyError:
+    return PolicyError(f"{path}: {problem}")
+
+
+def _read_bytes(path: str) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read()
+    except FileNotFoundError:
+        raise _fail(path, "missing (not an export directory, or an incomplete export)") from None
+    except OSError as e:
+        raise _fail(path, f"cannot be read ({e.strerror or e})") from None
+
+
+def _load_npz(path: str, data: bytes, expected_sha: Any) -> dict[str, np.ndarray]:
+    actual = sha256_bytes(data)
+    if actual != expected_sha:
+        raise _fail(
+            path,
+            f"sha256 {actual[:16]}… does not match policy.json's {str(expected_sha)[:16]}… "
+            "(file modified, truncated or from another export)",
+        )
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            return {k: np.asarray(npz[k]) for k in npz.files}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
+        raise _fail(path, f"corrupt or truncated npz ({type(e).__name__}: {e})") from None
+
+
+def _positive(json_path: str, section: dict, key: str) -> None:
+    value = section.get(key)
+    if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+        raise _fail(json_path, f"{key}={value!r} must be a positive number")
+
+
+def _check_meta(json_path: str, meta: Any) -> None:
+    if not isinstance(meta, dict):
+        raise _fail(json_path, "top level must be a JSON object")
+    version = meta.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise _fail(
+            json_path,
+            f"unsupported schema_version {version!r} (this runner reads {SCHEMA_VERSION})",
+        )
+    required = (
+        "layers",
+        "heads",
+        "observation",
+        "sensors",
+        "control",
+        "env",
+        "config",
+        "config_hash",
+        "weights_sha256",
+        "golden_sha256",
+    )
+    missing = [k for k in required if k not in meta]
+    if missing:
+        raise _fail(json_path, f"missing field(s) {', '.join(missing)}")
+    for key in ("observation", "sensors", "control", "env", "config"):
+        if not isinstance(meta[key], dict):
+            raise _fail(json_path, f"{key} must be a JSON object")
+    if not isinstance(meta["heads"], list) or not all(isinstance(h, dict) for h in meta["heads"]):
+        raise _fail(json_path, "heads must be a list of objects")
+    obs = meta["observation"]
+    if obs.get("size") != spec.OBS_SIZE or tuple(obs.get("names", ())) != spec.OBS_NAMES:
+        raise _fail(
+            json_path, f"observation layout {obs.get('names')} differs from this runner's spec.py"
+        )
+    sensors = meta["sensors"]
+    zones = (sensors.get("n_zones"), sensors.get("zone_start_deg"), sensors.get("zone_width_deg"))
+    if zones != (spec.N_ZONES, spec.ZONE_START_DEG, spec.ZONE_WIDTH_DEG):
+        raise _fail(json_path, f"zone definition {zones} differs from this runner's spec.py")
+    heads = tuple(h.get("activation") for h in meta["heads"])
+    if heads != HEAD_ACTIVATIONS:
+        raise _fail(json_path, f"head activations {heads} are not {HEAD_ACTIVATIONS}")
+    for key in ("v_max", "omega_max", "dt"):
+        _positive(json_path, meta["control"], key)
+    _positive(json_path, obs, "max_range")
+    offset = sensors.get("lidar_range_offset")
+    if not isinstance(offset, int | float) or not math.isfinite(offset) or offset < 0:
+        raise _fail(json_path, f"lidar_range_offset={offset!r} must be a number >= 0")
+    bounds = meta["env"].get("bounds")
+    if bounds is not None and not (
+        isinstance(bounds, list)
+        and len(bounds) == 4
+        and all(isinstance(b, int | float) and math.isfinite(b) for b in bounds)
+        and bounds[0] < bounds[1]
+        and bounds[2] < bounds[3]
+    ):
+        raise _fail(json_path, f"env bounds {bounds!r} must be [xmin, xmax, ymin, ymax]")
+    try:
+        expected = config_hash(meta["config"], meta["env"])
+    except (TypeError, ValueError) as e:
+        raise _fail(json_path, f"env/config are not canonical JSON ({e})") from None
+    if expected != meta["config_hash"]:
+        raise _fail(json_path, "config_hash does not match its env/config (metadata was edited)")
+
+
+def _build_layers(json_path: str, npz_path: str, meta: dict, arrays: dict) -> tuple[Layer, ...]:
+    specs = meta["layers"]
+    if not isinstance(specs, list) or len(specs) < 2:
+        raise _fail(json_path, "layers must list at least one hidden layer and the head")
+    names = [s.get("name") if isinstance(s, dict) else None for s in specs]
+    expected_names = [f"hidden_{i}" for i in range(len(specs) - 1)] + ["head"]
+    if names != expected_names:
+        raise _fail(json_path, f"layer names {names} should be {expected_names}")
+    expected_keys = {f"{n}/{p}" for n in names for p in ("kernel", "bias")}
+    if set(arrays) != expected_keys:
+        raise _fail(npz_path, f"arrays {sorted(arrays)} do not match layers {names}")
+    layers, width = [], spec.OBS_SIZE
+    for i, s in enumerate(specs):
+        name, n_in, n_out = s["name"], s.get("in"), s.get("out")
+        activation = "relu" if i < len(specs) - 1 else "heads"
+        if s.get("activation") != activation or n_in != width:
+            raise _fail(json_path, f"layer {name}: expected in={width}, activation={activation}")
+        kernel, bias = arrays[f"{name}/kernel"], arrays[f"{name}/bias"]
+        for arr, shape, what in ((kernel, (n_in, n_out), "kernel"), (bias, (n_out,), "bias")):
+            if arr.dtype != np.float32 or arr.shape != shape:
+                raise _fail(
+                    npz_path,
+                    f"{name}/{what} is {arr.dtype}{list(arr.shape)}, policy.json says "
+                    f"float32{list(shape)}",
+                )
+            if not np.isfinite(arr).all():
+                raise _fail(npz_path, f"{name}/{what} contains NaN or inf")
+        layers.append(Layer(name, np.ascontiguousarray(kernel), np.ascontiguousarray(bias)))
+        width = n_out
+    if width != spec.ACTION_SIZE:
+        raise _fail(json_path, f"head has {width} outputs, expected {spec.ACTION_SIZE}")
+    return tuple(layers)
+
+
+def verify_golden(path: str, layers: Sequence[Layer], golden: dict) -> None:
+    """Raises PolicyError unless the numpy MLP reproduces ``golden["actions"]`` (1e-5)."""
+    obs, actions = golden.get("obs"), golden.get("actions")
+    if obs is None or actions is None:
+        raise _fail(path, f"needs arrays 'obs' and 'actions', has {sorted(golden)}")
+    if obs.ndim != 2 or obs.shape[1] != spec.OBS_SIZE or actions.shape != (len(obs), 2):
+        raise _fail(path, f"bad shapes obs {list(obs.shape)}, actions {list(actions.shape)}")
+    if len(obs) == 0 or obs.dtype != np.float32 or actions.dtype != np.float32:
+        raise _fail(path, "obs and actions must be non-empty float32 arrays")
+    if not (np.isfinite(obs).all() and np.isfinite(actions).all()):
+        raise _fail(path, "contains NaN or inf")
+    # Both the batched path (gemm) and the single-observation path the loop uses (gemv).
+    err = np.abs(mlp_forward(layers, obs) - actions).max(axis=1)
+    pairs = zip(obs[:16], actions[:16], strict=True)
+    single = [np.abs(mlp_forward(layers, o) - a).max() for o, a in pairs]
+    worst = int(np.argmax(err))
+    max_err = max(float(err[worst]), max(single))
+    if not max_err <= GOLDEN_TOLERANCE:
+        raise _fail(
+            path,
+            f"numpy policy differs from the exported JAX actions by {max_err:.3g} "
+            f"(row {worst}; tolerance {GOLDEN_TOLERANCE:g}): weights or maths do not match",
+        )
+
+
+def load_policy(directory: str | os.PathLike) -> Policy:
+    """Reads and verifies an export directory; raises PolicyError on any problem."""
+    directory = os.fspath(directory)
+    if not os.path.isdir(directory):
+        raise PolicyError(f"{directory}: not a directory (expected an export directory)")
+    json_path = os.path.join(directory, POLICY_JSON)
+    try:
+        meta = json.loads(_read_bytes(json_path).decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise _fail(json_path, f"not valid JSON ({e})") from None
+    _check_meta(json_path, meta)
+    npz_path = os.path.join(directory, POLICY_NPZ)
+    arrays = _load_npz(npz_path, _read_bytes(npz_path), meta["weights_sha256"])
+    layers = _build_layers(json_path, npz_path, meta, arrays)
+    golden_path = os.path.join(directory, GOLDEN_NPZ)
+    golden = _load_npz(golden_path, _read_bytes(golden_path), meta["golden_sha256"])
+    verify_golden(golden_path, layers, golden)
+    return Policy(layers=layers, meta=meta, directory=directory)

@@ -1,0 +1,273 @@
+"""The jitted training core: data collection (Alg. 1 / A2) and updates (Alg. 2 / A3).
+
+One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
+
+    a_act = π(s);  a_adv = advisor(s)                        # Alg. 1 steps 9-10
+    if AfD:  ε = Eq. (1) with Q = critic (min of twins)       # Alg. 1 step 11 / A2 11-13
+             a = a_adv with probability ε, else a_act        # step 12
+    a = clip(a + Ornstein–Uhlenbeck noise, action box)       # step 13
+    s', r, terminal = env.step(s, a)     (auto-reset)        # steps 14-15
+    replay.add(s, a, a_adv, r, s', terminal)                 # step 16
+    once the buffer holds `warmup` transitions, `updates_per_step` times:
+        B = replay.sample(n)
+        critic_step(B)                                       # Alg. 2 steps 6-8 / A3 9-14
+        every d-th update: actor_step(B) + soft targets      # Alg. 2 steps 9-15 / A3 15-22
+
+Episode budget. An agent is *active* until it has completed N_total episodes (or its losses
+went non-finite). An inactive agent keeps stepping (it is one lane of a vmapped program) but
+learns nothing: its learning rates and τ are multiplied by 0, so its parameters stay exactly
+as they were, and its episode log ignores further episodes. This makes one vmapped run of
+many agents equal to the same agents run one by one.
+
+Static schedule. The warm-up test and the TD3 delay ``update % d == 0`` depend only on the
+global step index, which the caller passes *unbatched* (``first_step``) and the scan derives
+from ``arange``: under ``vmap`` they stay scalars, so ``lax.cond`` really skips the actor
+update on 3 of 4 steps instead of computing it and selecting.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+import envs
+from advisor_jax.advisor import advisor_action
+from advisor_jax.config import HParams, TrainConfig
+from advisor_jax.learner import LearnerState, make_learner
+from advisor_jax.networks import Actor
+from advisor_jax.noise import OUState, ou_init, ou_reset, ou_step
+from advisor_jax.replay import ReplayState, Transition, replay_add, replay_init, replay_sample
+from advisor_jax.runner import spec
+from advisor_jax.selector import select_action
+
+
+@struct.dataclass
+class EpisodeLog:
+    """Per-episode metrics of one agent, written at the index of each finished episode."""
+
+    outcome: (
+        jax.Array
+    )  # [N_total] int32: 0 = not played (yet), else envs.GOAL, COLLISION or TIMEOUT
+    length: jax.Array  # [N_total] int32 steps
+    episode_return: jax.Array  # [N_total] f32
+    collision_speed: jax.Array  # [N_total] f32 m/s, NaN unless the episode was a collision
+    actor_steps: jax.Array  # [N_total] int32 steps that executed the actor's action
+
+
+@struct.dataclass
+class TrainState:
+    """Everything one agent carries through the scan."""
+
+    learner: LearnerState
+    replay: ReplayState
+    env: Any  # envs NavState, leading axis [E]
+    noise: OUState  # [E, 2]
+    actor_steps: jax.Array  # [E] int32, actor-fired steps of the running episodes
+    episodes: jax.Array  # () int32, completed episodes N (Eq. 1)
+    env_steps: jax.Array  # () int32, environment steps taken while active (all envs)
+    diverged: jax.Array  # () bool, a loss went non-finite: the agent is frozen
+    log: EpisodeLog
+    key: jax.Array
+
+
+class Trainer(NamedTuple):
+    """Pure functions of one agent; jit and vmap them at the call site."""
+
+    init: Any  # (key) -> TrainState
+    chunk: Any  # (state, hp, first_step) -> (state, metrics [chunk_steps])
+    train: Any  # (key, hp) -> TrainState: init + the worst-case number of chunks
+    policy_apply: Any  # (actor_params, obs) -> action
+    max_steps: int  # environment steps per env after which every agent is surely done
+    env: Any
+
+
+def make_train(cfg: TrainConfig, env=None) -> Trainer:
+    """Builds the training functions of one agent type (static config)."""
+    agent = cfg.agent
+    env = env if env is not None else envs.make_env(cfg.arena, **_env_overrides(cfg))
+    learner = make_learner(agent)
+    actor = Actor(hidden=agent.actor_hidden)
+    n_envs, n_total, delay = cfg.envs_per_agent, cfg.episodes, agent.delay
+    action_low = jnp.asarray(spec.ACTION_LOW, jnp.float32)
+    action_high = jnp.asarray(spec.ACTION_HIGH, jnp.float32)
+    collision = envs.COLLISION
+
+    def init(key: jax.Array) -> TrainState:
+        key, k_learner, k_env = jax.random.split(key, 3)
+        return TrainState(
+            learner=learner.init(k_learner),
+            replay=replay_init(agent.buffer_size),
+            env=jax.vmap(env.reset)(jax.random.split(k_env, n_envs)),
+            noise=ou_init((n_envs, spec.ACTION_SIZE)),
+            actor_steps=jnp.zeros(n_envs, jnp.int32),
+            episodes=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+            diverged=jnp.zeros((), bool),
+            log=EpisodeLog(
+                outcome=jnp.zeros(n_total, jnp.int32),
+                length=jnp.zeros(n_total, jnp.int32),
+                episode_return=jnp.zeros(n_total, jnp.float32),
+                collision_speed=jnp.full(n_total, jnp.nan, jnp.float32),
+                actor_steps=jnp.zeros(n_total, jnp.int32),
+            ),
+            key=key,
+        )
+
+    def collect(state: TrainState, hp: HParams, active: jax.Array) -> TrainState:
+        """One environment step of every env of the agent (Alg. 1 / A2, steps 8-16)."""
+        key, k_select, k_noise = jax.random.split(state.key, 3)
+        obs = state.env.obs  # [E, 20]
+        actor_action = actor.apply(state.learner.actor, obs)  # [E, 2]
+        adv_action = jax.vmap(advisor_action, in_axes=(0, None))(obs, env.advisor_params)
+        if agent.advisor_data:
+            q_actor = learner.q_select(state.learner.critic, obs, actor_action)  # [E]
+            q_advisor = learner.q_select(state.learner.critic, obs, adv_action)
+            chosen, used_advisor = jax.vmap(select_action, in_axes=(0, 0, 0, 0, 0, None, None))(
+                jax.random.split(k_select, n_envs),
+                actor_action,
+                adv_action,
+                q_actor,
+                q_advisor,
+                state.episodes,
+                hp,
+            )
+        else:
+            chosen, used_advisor = actor_action, jnp.zeros(n_envs, bool)
+        noise_state, noise = ou_step(state.noise, k_noise, hp.ou_theta, hp.ou_sigma)
+        action = jnp.clip(chosen + noise, action_low, action_high)
+        env_state = jax.vmap(env.step)(state.env, action)
+
+        transition = Transition(
+            obs=obs,
+            action=action,
+            advisor_action=adv_action,
+            reward=env_state.reward,
+            next_obs=env_state.terminal_obs,
+            terminal=env_state.terminal.astype(jnp.float32),
+        )
+        done = env_state.done  # [E]
+        actor_steps = state.actor_steps + (~used_advisor).astype(jnp.int32)
+        log = _write_episodes(state.log, state.episodes, env_state, actor_steps, collision)
+        return state.replace(
+            replay=replay_add(state.replay, transition),
+            env=env_state,
+            noise=ou_reset(noise_state, done),
+            actor_steps=jnp.where(done, 0, actor_steps),
+            episodes=state.episodes + jnp.sum(done, dtype=jnp.int32),
+            env_steps=state.env_steps + n_envs * active.astype(jnp.int32),
+            log=log,
+            key=key,
+        )
+
+    def learn(state: TrainState, hp: HParams, step_index: jax.Array):
+        """`updates_per_step` gradient updates on replayed batches (Alg. 2 / A3).
+
+        Returns the new state, the mean metrics of the updates (NaN where nothing was
+        computed) and whether any computed loss was non-finite.
+        """
+        key, k_updates = jax.random.split(state.key)
+
+        def one_update(carry, u):
+            learner_state, key = carry
+            key, k_sample, k_critic = jax.random.split(key, 3)
+            batch = replay_sample(state.replay, k_sample, agent.batch_size)
+            learner_state, critic_metrics = learner.critic_step(learner_state, batch, k_critic, hp)
+            update_actor = (step_index * cfg.updates_per_step + u) % delay == 0  # unbatched
+            learner_state, actor_metrics = jax.lax.cond(
+                update_actor,
+                lambda ls: learner.actor_step(ls, batch, hp),
+                lambda ls: (ls, _nan_like(jax.eval_shape(learner.actor_step, ls, batch, hp)[1])),
+                learner_state,
+            )
+            bad = ~_all_finite(critic_metrics) | (update_actor & ~_all_finite(actor_metrics))
+            return (learner_state, key), ({**critic_metrics, **actor_metrics}, bad)
+
+        def run_updates(learner_state):
+            (learner_state, _), (metrics, bad) = jax.lax.scan(
+                one_update, (learner_state, k_updates), jnp.arange(cfg.updates_per_step)
+            )
+            return learner_state, jax.tree_util.tree_map(jnp.nanmean, metrics), jnp.any(bad)
+
+        def no_updates(learner_state):
+            metrics = jax.eval_shape(run_updates, learner_state)[1]
+            return learner_state, _nan_like(metrics), jnp.zeros((), bool)
+
+        ready = (step_index + 1) * n_envs >= agent.warmup  # unbatched: same for all agents
+        learner_state, metrics, bad = jax.lax.cond(ready, run_updates, no_updates, state.learner)
+        return state.replace(learner=learner_state, key=key), metrics, bad
+
+    def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
+        """`chunk_steps` environment steps; `first_step` is the global index of the first."""
+
+        def body(state: TrainState, i):
+            active = (state.episodes < n_total) & ~state.diverged
+            frozen_hp = hp.replace(
+                lr_actor=hp.lr_actor * active,
+                lr_critic=hp.lr_critic * active,
+                tau=hp.tau * active,
+            )
+            state = collect(state, hp, active)
+            state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
+            state = state.replace(diverged=state.diverged | (nonfinite & active))
+            metrics = {**metrics, "train/active": active, "train/episodes": state.episodes}
+            return state, metrics
+
+        steps = jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
+        return jax.lax.scan(body, state, steps)
+
+    max_steps = math.ceil(n_total / n_envs) * env.max_episode_steps
+
+    def train(key: jax.Array, hp: HParams) -> TrainState:
+        n_chunks = math.ceil(max_steps / cfg.chunk_steps)
+
+        def body(state, c):
+            state, _ = chunk(state, hp, c * cfg.chunk_steps)
+            return state, None
+
+        state, _ = jax.lax.scan(body, init(key), jnp.arange(n_chunks, dtype=jnp.int32))
+        return state
+
+    return Trainer(
+        init=init,
+        chunk=chunk,
+        train=train,
+        policy_apply=actor.apply,
+        max_steps=max_steps,
+        env=env,
+    )
+
+
+def _write_episodes(log: EpisodeLog, episodes, env_state, actor_steps, collision) -> EpisodeLog:
+    """Stores the metrics of every env whose episode just ended at its episode index."""
+    done = env_state.done  # [E]
+    n_total = log.outcome.shape[0]
+    slot = episodes + jnp.cumsum(done.astype(jnp.int32)) - 1
+    slot = jnp.where(done, slot, n_total)  # out of range: dropped
+    speed = jnp.where(env_state.outcome == collision, env_state.collision_speed, jnp.nan)
+    return EpisodeLog(
+        outcome=log.outcome.at[slot].set(env_state.outcome, mode="drop"),
+        length=log.length.at[slot].set(env_state.episode_length, mode="drop"),
+        episode_return=log.episode_return.at[slot].set(env_state.episode_return, mode="drop"),
+        collision_speed=log.collision_speed.at[slot].set(speed, mode="drop"),
+        actor_steps=log.actor_steps.at[slot].set(actor_steps, mode="drop"),
+    )
+
+
+def _nan_like(shapes):
+    """NaN (floats) or zero (integers) arrays of the given shapes: "not computed"."""
+    fill = lambda s: jnp.full(
+        s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.floating) else 0, s.dtype
+    )
+    return jax.tree_util.tree_map(fill, shapes)
+
+
+def _all_finite(metrics: dict) -> jax.Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in metrics.values()]))
+
+
+def _env_overrides(cfg: TrainConfig) -> dict:
+    return {"max_episode_steps": cfg.max_episode_steps} if cfg.max_episode_steps else {}

@@ -1,0 +1,123 @@
+"""``advisor-jax train``: train a population (seeds × hyperparameter grid) in one compile."""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from pathlib import Path
+from typing import Literal
+
+from advisor_jax.config import PRESETS, TrainConfig, preset
+from advisor_jax.sweep import parse_assignments
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainArgs:
+    """Train advisor-based agents. All seeds and grid points run as one vmapped program.
+
+    Examples:
+      advisor-jax train                                    # quick CPU run, ATD3+AfDP
+      advisor-jax train --preset paper --agent ADDPG+AfD --seeds 6 \
+          --grid advisor_episodes=0,125,250,375,500
+    """
+
+    preset: Literal["quick", "paper", "physical"] = "quick"
+    """Starting point: quick (small networks, minutes on a CPU), paper (Tables A2/A4,
+    simulation), physical (Tables A2/A4, physical column, physical arena)."""
+    agent: str = "ATD3+AfDP"
+    """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1)."""
+    seeds: int = 1
+    """Independent seeds per grid point."""
+    seed: int = 0
+    """First seed; the seeds are seed, seed+1, ..."""
+    hp: tuple[str, ...] = ()
+    """Hyperparameter overrides NAME=VALUE, e.g. --hp lr_actor=1e-4 beta=0.05."""
+    grid: tuple[str, ...] = ()
+    """Hyperparameter sweep NAME=V1,V2,... (cartesian product over all given names)."""
+    episodes: int | None = None
+    """N_total, training episodes per agent (preset default if omitted)."""
+    arena: str | None = None
+    """Training arena (preset default if omitted)."""
+    envs_per_agent: int | None = None
+    """Environments per agent (paper: 1)."""
+    updates_per_step: int | None = None
+    """Gradient updates per environment step (default 1)."""
+    max_episode_steps: int | None = None
+    """h_max override (default: the arena's, 300 or 150 for physical)."""
+    batch_size: int | None = None
+    """Minibatch size override."""
+    buffer_size: int | None = None
+    """Replay capacity override."""
+    chunk_steps: int | None = None
+    """Environment steps per jitted chunk (progress/checkpoint granularity)."""
+    out: Path | None = None
+    """Run directory (default: runs/<agent>-<preset>-<UTC time>)."""
+    eval_episodes: int = 100
+    """Evaluation episodes per agent and arena after training (0 = skip)."""
+    eval_arenas: tuple[str, ...] | None = None
+    """Evaluation arenas (default: training and validation; physical for the physical preset)."""
+    checkpoint_every: int = 10
+    """Write a resumable checkpoint every this many chunks (0 = only at the end)."""
+    resume: bool = False
+    """Continue the interrupted run in --out from its last checkpoint."""
+    no_progress: bool = False
+    """Hide the progress bar."""
+
+
+def build_run(args: TrainArgs):
+    """(TrainConfig, base HParams, grid, seeds, eval arenas) from the command line."""
+    if args.preset not in PRESETS:
+        raise ValueError(f"unknown preset {args.preset!r}; choose one of {', '.join(PRESETS)}")
+    if args.seeds <= 0:
+        raise ValueError(f"--seeds must be a positive integer, got {args.seeds}")
+    agent_overrides = {
+        k: v
+        for k, v in (("batch_size", args.batch_size), ("buffer_size", args.buffer_size))
+        if v is not None
+    }
+    cfg, base_hp = preset(args.preset, args.agent, **agent_overrides)
+    train_overrides = {
+        name: getattr(args, name)
+        for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",
+                     "max_episode_steps", "chunk_steps")
+        if getattr(args, name) is not None
+    }  # fmt: skip
+    cfg = dataclasses.replace(cfg, **train_overrides)
+    overrides = parse_assignments(args.hp)
+    for name, values in overrides.items():
+        if len(values) != 1:
+            raise ValueError(f"--hp {name} takes one value; use --grid to sweep several")
+    base_hp = base_hp.replace(**{k: v[0] for k, v in overrides.items()})
+    grid = parse_assignments(args.grid)
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    arenas = args.eval_arenas or (
+        ("physical",) if cfg.arena == "physical" else ("training", "validation")
+    )
+    return cfg, base_hp, grid, seeds, tuple(arenas)
+
+
+def default_out(cfg: TrainConfig, preset_name: str) -> Path:
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%S")
+    name = cfg.agent.name.replace("+", "_").lower()
+    return Path("runs") / f"{name}-{preset_name}-{stamp}"
+
+
+def train_command(args: TrainArgs) -> None:
+    """Entry point of ``advisor-jax train``."""
+    from advisor_jax.run import run_training  # imports JAX: keep --help fast
+
+    cfg, base_hp, grid, seeds, arenas = build_run(args)
+    out = args.out or default_out(cfg, args.preset)
+    run_training(
+        cfg,
+        base_hp,
+        grid,
+        seeds,
+        out,
+        eval_episodes=args.eval_episodes,
+        eval_arenas=arenas,
+        checkpoint_every=args.checkpoint_every,
+        resume=args.resume,
+        progress=not args.no_progress,
+    )
+    print(f"results in {out}/ (run.json, eval.json, metrics.npz, episodes.csv, params/)")

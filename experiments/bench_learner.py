@@ -1,0 +1,231 @@
+"""Learner throughput: vmapped ADDPG/ATD3 updates per second against a matmul ceiling.
+
+DESIGN.md's performance model says the learner, not the simulator, is the cost: a paper
+agent is ~10^5 updates of batch 1000. This script times the jitted, vmapped update of
+``--agents`` agents (replay sampling + critic step + actor step every d-th update, the
+exact functions the trainer runs, inside one ``lax.scan``) and, in the same process,
+two ceilings: a large fp32 matmul at JAX's default precision and a device-to-device copy.
+FLOPs per update come from XLA's own cost analysis of the compiled update and from an
+analytic count (printed side by side).
+
+    python experiments/bench_learner.py                      # paper sizes, ATD3+AfDP
+    python experiments/bench_learner.py --small --agents 1 4 # CPU smoke run
+
+Writes ``results/bench_learner.md`` and ``results/bench_learner.json`` (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import platform
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from advisor_jax.config import HParams, parse_agent
+from advisor_jax.learner import make_learner
+from advisor_jax.replay import Transition, replay_add, replay_init, replay_sample
+from advisor_jax.runner import spec
+
+
+def dense_macs(sizes: list[tuple[int, int]]) -> int:
+    return sum(i * o for i, o in sizes)
+
+
+def analytic_flops_per_update(cfg) -> float:
+    """FLOPs of one update per batch sample: forward = 2·MACs, backward ≈ 2 × forward."""
+    h = cfg.actor_hidden
+    widths = [spec.OBS_SIZE, *h, spec.ACTION_SIZE]
+    actor = dense_macs(list(zip(widths[:-1], widths[1:], strict=True)))
+    c = cfg.critic_hidden
+    critic = dense_macs(
+        [
+            (spec.OBS_SIZE, cfg.critic_state_hidden),
+            (cfg.critic_state_hidden + spec.ACTION_SIZE, c[0]),
+            *zip(c[:-1], c[1:], strict=False),
+            (c[-1], 1),
+        ]
+    )
+    k = cfg.n_critics
+    # Critic step: target actor fwd, k target critics fwd, k critics fwd + bwd (weights+inputs).
+    critic_step = actor + k * critic + 3 * k * critic
+    # Actor step: actor fwd, Q1 fwd + input-grad bwd, AfP: Q1 on [2n], actor bwd (weights+inputs).
+    actor_step = actor + 2 * critic + (2 * critic if cfg.advisor_policy else 0) + 2 * actor
+    return 2.0 * (critic_step + actor_step / cfg.delay)
+
+
+def xla_flops_per_update(cfg, learner, replay) -> float:
+    """XLA's FLOP count of one critic step + 1/d of an actor step (one agent)."""
+    hp = HParams()
+    state = jax.jit(learner.init)(jax.random.PRNGKey(0))
+    batch = replay_sample(replay, jax.random.PRNGKey(1), cfg.batch_size)
+    key = jax.random.PRNGKey(2)
+
+    def flops(fn, *args):
+        cost = jax.jit(fn).lower(*args).compile().cost_analysis()
+        cost = cost[0] if isinstance(cost, list) else cost
+        return float(cost.get("flops", float("nan")))
+
+    critic = flops(lambda s, b, k: learner.critic_step(s, b, k, hp)[0], state, batch, key)
+    actor = flops(lambda s, b: learner.actor_step(s, b, hp)[0], state, batch)
+    return critic + actor / cfg.delay
+
+
+def make_update_loop(cfg, n_updates: int):
+    learner = make_learner(cfg)
+    hp = HParams()
+
+    def one_agent(learner_state, replay, key):
+        def body(carry, u):
+            state, key = carry
+            key, k_sample, k_critic = jax.random.split(key, 3)
+            batch = replay_sample(replay, k_sample, cfg.batch_size)
+            state, _ = learner.critic_step(state, batch, k_critic, hp)
+            state = jax.lax.cond(
+                u % cfg.delay == 0,
+                lambda s: learner.actor_step(s, batch, hp)[0],
+                lambda s: s,
+                state,
+            )
+            return (state, key), None
+
+        (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), jnp.arange(n_updates))
+        return learner_state
+
+    return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0)
+
+
+def fill_replay(capacity: int, key) -> object:
+    k1, k2, k3 = jax.random.split(key, 3)
+    data = Transition(
+        obs=jax.random.uniform(k1, (capacity, spec.OBS_SIZE)),
+        action=jax.random.uniform(k2, (capacity, spec.ACTION_SIZE)),
+        advisor_action=jax.random.uniform(k3, (capacity, spec.ACTION_SIZE)),
+        reward=jnp.zeros(capacity),
+        next_obs=jax.random.uniform(k1, (capacity, spec.OBS_SIZE)),
+        terminal=jnp.zeros(capacity),
+    )
+    return replay_add(replay_init(capacity), data)
+
+
+def timeit(fn, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def matmul_ceiling(n: int) -> float:
+    a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32)
+    f = jax.jit(lambda x: x @ x)
+    jax.block_until_ready(f(a))
+    return 2 * n**3 / timeit(lambda: f(a), 5) / 1e12
+
+
+def copy_ceiling(n_bytes: int) -> float:
+    x = jnp.ones(n_bytes // 4, jnp.float32)
+    f = jax.jit(lambda v: v * 1.0 + 0.0)  # one read, one write
+    jax.block_until_ready(f(x))
+    return 2 * n_bytes / timeit(lambda: f(x), 5) / 1e9
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--agent", default="ATD3+AfDP")
+    parser.add_argument("--agents", type=int, nargs="+", default=[1, 8, 32, 64, 128])
+    parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
+    parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    args = parser.parse_args()
+
+    overrides = {}
+    if args.small:
+        overrides = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
+                         buffer_size=4096, batch_size=128)  # fmt: skip
+    cfg = parse_agent(args.agent, **overrides)
+    device = jax.devices()[0]
+    print(f"device: {device.device_kind} ({jax.default_backend()}), jax {jax.__version__}")
+    ceiling_tflops = matmul_ceiling(2048 if args.small else 8192)
+    copy_gbs = copy_ceiling((64 if args.small else 2048) * 2**20)
+    print(f"ceiling: fp32 matmul {ceiling_tflops:.1f} TFLOP/s, copy {copy_gbs:.0f} GB/s")
+    analytic = analytic_flops_per_update(cfg) * cfg.batch_size
+
+    rows = []
+    for n_agents in args.agents:
+        learner, loop = make_update_loop(cfg, args.updates)
+        keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
+        states = jax.jit(jax.vmap(learner.init))(keys)
+        replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
+            cfg.buffer_size, keys
+        )
+        if not rows:
+            one_replay = jax.tree_util.tree_map(lambda x: x[0], replays)
+            xla_flops = xla_flops_per_update(cfg, learner, one_replay)
+        t0 = time.perf_counter()
+        states = jax.block_until_ready(loop(states, replays, keys))
+        first = time.perf_counter() - t0
+        best = float("inf")
+        for _ in range(3):
+            t = time.perf_counter()
+            states = jax.block_until_ready(loop(states, replays, keys))
+            best = min(best, time.perf_counter() - t)
+        ups = n_agents * args.updates / best
+        tflops = ups * analytic / 1e12
+        row = dict(agents=n_agents, agent_updates_per_s=ups, updates_per_s_per_agent=ups / n_agents,
+                   tflops=tflops, pct_ceiling=100 * tflops / ceiling_tflops,
+                   flops_per_update_analytic=analytic, flops_per_update_xla=xla_flops,
+                   seconds_per_call=best, first_call_s=first)  # fmt: skip
+        rows.append(row)
+        print(
+            f"agents {n_agents:4d}: {ups:10.0f} agent-updates/s  {tflops:7.2f} TFLOP/s "
+            f"({row['pct_ceiling']:.1f} % of matmul)  GFLOP/update analytic {analytic / 1e9:.2f} "
+            f"xla {xla_flops / 1e9:.2f}"
+        )
+
+    result = dict(
+        date=datetime.date.today().isoformat(), device=device.device_kind,
+        backend=jax.default_backend(), host=platform.node(), jax=jax.__version__,
+        agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
+        matmul_ceiling_tflops=ceiling_tflops, copy_gbs=copy_gbs, rows=rows,
+    )  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "bench_learner.json").write_text(json.dumps(result, indent=2) + "\n")
+    lines = [
+        "# Learner throughput",
+        "",
+        f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
+        f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
+        "updates per jitted call (replay sampling + critic step + delayed actor step).",
+        "",
+        f"Device: {device.device_kind} ({jax.default_backend()}), jax {jax.__version__}, "
+        f"{result['date']}. Ceilings measured in the same process: fp32 matmul "
+        f"(default precision) {ceiling_tflops:.1f} TFLOP/s, device copy {copy_gbs:.0f} GB/s.",
+        "",
+        "| agents | agent-updates/s | TFLOP/s | % of matmul ceiling "
+        "| GFLOP/update (analytic) | GFLOP/update (XLA) |",
+        "|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['agents']} | {r['agent_updates_per_s']:,.0f} | {r['tflops']:.2f} | "
+            f"{r['pct_ceiling']:.1f} | {r['flops_per_update_analytic'] / 1e9:.2f} | "
+            f"{r['flops_per_update_xla'] / 1e9:.2f} |"
+        )
+    lines += ["", "Command: `python experiments/bench_learner.py " + " ".join(
+        a for a in __import__("sys").argv[1:]) + "`", ""]  # fmt: skip
+    (args.out / "bench_learner.md").write_text("\n".join(lines))
+    print(np.round([r["agent_updates_per_s"] for r in rows]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,102 @@
+"""advisor-jax-car: one-line errors, a dry run with fake sensors, replay of its log."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+
+import pytest
+from runner_fakes import ring_scan
+
+from advisor_jax.runner import cli, hardware
+from advisor_jax.runner.observation import Pose
+
+DRIVE = ["--drive", "ackermann", "--wheelbase", "0.26", "--max-steer", "25"]
+
+
+def _error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    assert err[0].startswith("advisor-jax-car: error: ")
+    return err[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ([], "driving needs POLICY_DIR and --goal"),
+        (["{dir}", "--goal", "0", "0"], "choose --drive diff or --drive ackermann"),
+        (["{dir}", "--goal", "0", "0", "--drive", "diff"], "needs --track-width"),
+        (["{dir}", "--goal", "0", "0", "--drive", "ackermann"], "needs --wheelbase"),
+        (["{dir}", "--goal", "0", "0", *DRIVE, "--pose-udp", "5005"], "HOST:PORT"),
+        (["{dir}", "--goal", "0", "0", *DRIVE], "no motor driver"),
+        (["{dir}", "--goal", "5", "0", *DRIVE, "--dry-run"], "outside the arena bounds"),
+        (["{dir}/nope", "--goal", "0", "0", *DRIVE, "--dry-run"], "not a directory"),
+        (["--replay", "{dir}/missing.jsonl"], "cannot read log"),
+    ],
+)
+def test_errors_are_one_line(export_dir, capsys, args, message):
+    args = [a.replace("{dir}", str(export_dir)) for a in args]
+    assert cli.main(args) == 2
+    assert message in _error_line(capsys)
+
+
+def test_lidar_unavailable_is_one_line(export_dir, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rplidar", None)
+    args = [str(export_dir), "--goal", "0", "0", *DRIVE, "--dry-run", "--pose-udp", "127.0.0.1:0"]
+    assert cli.main(args) == 2
+    assert "needs the 'rplidar' package" in _error_line(capsys)
+
+
+class FakeLidarSource:
+    def __init__(self, port, baudrate=115200):
+        self.closed = False
+
+    def latest(self):
+        return ring_scan(0.9, time.monotonic() - 0.01)
+
+    def close(self):
+        self.closed = True
+
+
+class FakeTracker:
+    def __init__(self, host, port):
+        self.t0 = time.monotonic()
+
+    def latest(self):
+        now = time.monotonic()
+        t = now - self.t0
+        return Pose(-1.0 + 0.3 * t * math.cos(0.2), -0.5 + 0.3 * t * math.sin(0.2), 0.2, t, now)
+
+    def close(self):
+        pass
+
+
+def test_dry_run_then_replay(export_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(hardware, "RplidarScanSource", FakeLidarSource)
+    monkeypatch.setattr(hardware, "UdpPoseSource", FakeTracker)
+    log = tmp_path / "drive.jsonl"
+    args = [str(export_dir), "--goal", "1.5", "0.8", *DRIVE, "--dry-run", "--max-cycles", "6"]
+    assert cli.main([*args, "--log", str(log), "--rate", "50"]) == 0
+    captured = capsys.readouterr()
+    printed = captured.out.splitlines()
+    assert len(printed) == 7 and printed[-1] == "[dry-run] STOP"
+    assert all(line.startswith("[dry-run] ackermann speed=") for line in printed[:6])
+    assert "differs from the training rate 20 Hz" in captured.err
+    assert "ended (max_cycles) after 6 cycles" in captured.err
+    lines = [json.loads(x) for x in log.read_text().splitlines()]
+    header, cycles, footer = lines[0], lines[1:-1], lines[-1]
+    assert header["goal"] == [1.5, 0.8] and header["drive"]["max_steering"] == math.radians(25)
+    assert header["loop"]["goal_tolerance"] == 0.15 and header["loop"]["collision_distance"] == 0.1
+    assert header["observation"]["range_offset"] == 0.22
+    assert len(cycles) == 6 and all(c["state"] == "run" for c in cycles)
+    assert footer["end"] == "max_cycles"
+    assert cli.main(["--replay", str(log)]) == 0
+    assert "replayed 6 of 6 cycles (6 driving)" in capsys.readouterr().out
+    # A log recorded with other weights cannot be replayed with this policy.
+    header["weights_sha256"] = "0" * 64
+    log.write_text("\n".join(json.dumps(x) for x in [header, *cycles, footer]) + "\n")
+    assert cli.main(["--replay", str(log), str(export_dir)]) == 2
+    assert "is not the one the log was recorded with" in _error_line(capsys)

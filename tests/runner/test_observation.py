@@ -1,0 +1,272 @@
+"""Observation building: RPLIDAR conversion, zones, velocity, goal angle, validation."""
+
+from __future__ import annotations
+
+import math
+import types
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from runner_fakes import ring_scan
+
+from advisor_jax.runner import spec, zones
+from advisor_jax.runner.errors import ObservationError
+from advisor_jax.runner.observation import (
+    ObservationBuilder,
+    ObservationConfig,
+    Pose,
+    Scan,
+    check_fresh,
+    goal_features,
+    scan_to_robot_frame,
+)
+
+BOUNDS = (-2.45, 2.45, -1.5, 1.5)
+
+
+def builder(**kw) -> ObservationBuilder:
+    cfg = dict(min_valid_points=1, bounds=BOUNDS)
+    cfg.update(kw)
+    return ObservationBuilder(ObservationConfig(**cfg), (1.0, 0.5))
+
+
+def one_point(cw_deg: float, mm: float = 500.0, **kw) -> np.ndarray:
+    """Zones of a scan with a single valid reading."""
+    return builder(**kw).zones(Scan(np.array([[15.0, cw_deg, mm]]), 0.0))
+
+
+def zone_of(p: np.ndarray) -> list[int]:
+    return np.flatnonzero(p < 1.0).tolist()
+
+
+@pytest.mark.parametrize(
+    ("cw_deg", "zone"),
+    [
+        (270.0, 0),  # clockwise 270° = +90° CCW: left, zone 0 (67.5°, 90°]
+        (-90.0, 0),
+        (90.0, 8),  # -90°: right, zone 8 (-112.5°, -90°]
+        (89.9, 7),  # -89.9°: zone 7 (-90°, -67.5°]
+        (0.1, 4),  # -0.1°: just right of forward
+        (359.9, 3),  # +0.1°: just left of forward
+        (180.0, 12),  # ±180°: straight back, one zone whichever way it is written
+        (-180.0, 12),
+        (540.0, 12),
+        (179.9, 11),  # -179.9°
+        (180.1, 12),  # +179.9°
+    ],
+)
+def test_rplidar_angles_land_in_documented_zones(cw_deg, zone):
+    p = one_point(cw_deg)
+    assert zone_of(p) == [zone]
+    assert p[zone] == np.float32(0.5)
+
+
+def test_zone_bounds_match_spec():
+    """Every zone's interior, mapped through the clockwise convention, lands in that zone."""
+    for k in range(16):
+        low, high = spec.zone_bounds_deg(k)
+        for ccw in (low + 0.01, 0.5 * (low + high), high - 0.01):
+            assert zone_of(one_point(-ccw)) == [k]
+
+
+def test_units_offset_and_clipping():
+    # 640 mm with the body edge 0.22 m from the lidar: 0.42 m of free distance.
+    assert one_point(0.0, 640.0, range_offset=0.22)[4] == np.float32(0.42)
+    assert one_point(0.0, 100.0, range_offset=0.22)[4] == 0.0  # inside the body: 0
+    assert one_point(0.0, 5000.0)[4] == 1.0  # beyond the cutoff: max range
+    assert one_point(0.0, 1500.0, max_range=2.0)[4] == np.float32(1.5)
+
+
+def test_mount_yaw():
+    # A lidar mounted back to front: its 0° mark looks backwards (zone 12) and its
+    # clockwise 90° mark looks left (+90°: zone 0).
+    assert zone_of(one_point(0.0, mount_yaw_deg=180.0)) == [12]
+    assert zone_of(one_point(90.0, mount_yaw_deg=180.0)) == [0]
+    assert zone_of(one_point(0.0, mount_yaw_deg=90.0)) == [0]
+
+
+def test_min_per_zone_invalid_dropped_empty_is_max():
+    pts = np.array(
+        [
+            [15, 1.0, 800.0],  # zone 4
+            [15, 2.0, 300.0],  # zone 4: the minimum
+            [0, 3.0, 0.0],  # invalid (0 mm): must not read 0 m
+            [15, 3.5, 0.0],
+            [3, 4.0, 200.0],  # low quality: dropped when min_quality = 5
+        ]
+    )
+    p = builder().zones(Scan(pts, 0.0))
+    np.testing.assert_array_equal(p, np.where(np.arange(16) == 4, 0.2, 1.0).astype(np.float32))
+    p = builder(min_quality=5).zones(Scan(pts, 0.0))
+    assert p[4] == np.float32(0.3) and p.dtype == np.float32
+    p = builder(min_range=0.25).zones(Scan(pts, 0.0))  # 200 mm: a hit on the chassis
+    assert p[4] == np.float32(0.3)
+
+
+def test_ring_scan_fixture():
+    d = np.linspace(0.3, 1.1, 16)
+    p = builder(range_offset=0.2).zones(ring_scan(d, 0.0))
+    np.testing.assert_allclose(p, np.clip(d - 0.2, 0.0, 1.0), atol=1e-7)
+
+
+def _generic_numpy():
+    """numpy behind a different module object: reduce_to_zones takes its generic (jax) path."""
+    return types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if not k.startswith("_")})
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(1, 300),
+    yaw=st.sampled_from([0.0, 180.0, -37.5, 22.5]),
+    offset=st.sampled_from([0.0, 0.22]),
+)
+def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
+    """The car's scatter-minimum equals the simulator's membership-matrix path exactly,
+    including readings exactly on zone boundaries and at ±180°."""
+    rng = np.random.default_rng(seed)
+    deg = rng.uniform(-400.0, 400.0, n)
+    deg[: n // 3] = rng.integers(-32, 32, n // 3) * 22.5  # exact boundaries
+    mm = rng.uniform(0.0, 1500.0, n)
+    mm[rng.random(n) < 0.2] = 0.0
+    angles, ranges = scan_to_robot_frame(np.stack([np.full(n, 15.0), deg, mm], 1), yaw)
+    valid = rng.random(n) < 0.9
+    fast = zones.reduce_to_zones(angles, ranges, valid, range_offset=offset)
+    slow = zones.reduce_to_zones(angles, ranges, valid, range_offset=offset, xp=_generic_numpy())
+    np.testing.assert_array_equal(fast, slow)
+    # Non-finite angles and ranges are dropped identically by both paths.
+    bad_a, bad_r = angles.copy(), ranges.copy()
+    bad_a[rng.random(n) < 0.1] = np.nan
+    bad_r[rng.random(n) < 0.1] = rng.choice([np.nan, np.inf, -np.inf])
+    fast = zones.reduce_to_zones(bad_a, bad_r, None, range_offset=offset)
+    with np.errstate(invalid="ignore"):
+        slow = zones.reduce_to_zones(bad_a, bad_r, None, range_offset=offset, xp=_generic_numpy())
+    np.testing.assert_array_equal(fast, slow)
+    # and against a plain Python loop over the documented zone rule (zone_index)
+    ref = np.full(16, 1.0)
+    for a, r, ok in zip(angles, ranges, valid, strict=True):
+        if ok and r > 0:
+            k = int(zones.zone_index(np.array([a]))[0])
+            ref[k] = min(ref[k], min(max(r - offset, 0.0), 1.0))
+    np.testing.assert_array_equal(
+        zones.reduce_to_zones(angles, ranges, valid, range_offset=offset), ref
+    )
+
+
+@pytest.mark.parametrize(
+    ("points", "reason"),
+    [
+        (np.array([[15.0, np.nan, 500.0]]), "scan_nan"),
+        (np.array([[15.0, 10.0, np.inf]]), "scan_nan"),
+        (np.zeros((5, 2)), "scan_format"),
+        (np.zeros((0, 3)), "scan_empty"),
+        ([("a", "b", "c")], "scan_format"),
+        (np.array([[15.0, 10.0, -5.0]]), "scan_format"),
+        (np.array([[0.0, 10.0, 0.0]] * 10), "scan_empty"),
+    ],
+)
+def test_bad_scans(points, reason):
+    with pytest.raises(ObservationError) as e:
+        builder().zones(Scan(points, 0.0))
+    assert e.value.reason == reason
+
+
+def test_too_few_valid_readings():
+    pts = np.array([[15.0, a, 500.0 if a < 30 else 0.0] for a in range(200)])
+    with pytest.raises(ObservationError, match="30 valid readings of 200 .need 50"):
+        builder(min_valid_points=50).zones(Scan(pts, 0.0))
+
+
+def test_list_of_tuples_accepted():
+    p = builder().zones(Scan([(15, 90.0, 700.0), (15, 270.0, 400.0)], 0.0))
+    assert p[8] == np.float32(0.7) and p[0] == np.float32(0.4)
+
+
+def _pose(x, y, theta, t):
+    return Pose(x, y, theta, t, t)
+
+
+def test_finite_difference_velocity():
+    b = builder()
+    assert b.velocity(_pose(0.0, 0.0, 0.0, 10.0)) == (0.0, 0.0)  # first pose: at rest
+    vx, vy = b.velocity(_pose(0.1, -0.05, 1.0, 10.05))
+    assert vx == pytest.approx(2.0) and vy == pytest.approx(-1.0)
+    # The same datagram seen again (tracker slower than the loop): keep the velocity.
+    assert b.velocity(_pose(0.1, -0.05, 1.0, 10.05)) == (vx, vy)
+    vx, vy = b.velocity(_pose(0.1, 0.05, 1.0, 10.15))  # world frame, independent of θ
+    assert vx == pytest.approx(0.0) and vy == pytest.approx(1.0)
+
+
+def test_pose_glitches_and_recovery():
+    b = builder(max_speed=3.0)
+    b.velocity(_pose(0.0, 0.0, 0.0, 1.0))
+    with pytest.raises(ObservationError) as e:
+        b.velocity(_pose(1.0, 0.0, 0.0, 1.05))  # 20 m/s: a tracker glitch
+    assert e.value.reason == "pose_jump"
+    assert b.velocity(_pose(1.01, 0.0, 0.0, 1.1)) == pytest.approx((0.2, 0.0))  # recovered
+    with pytest.raises(ObservationError) as e:
+        b.velocity(_pose(1.0, 0.1, 0.0, 1.1))  # same timestamp, different place
+    assert e.value.reason == "pose_time"
+    with pytest.raises(ObservationError) as e:
+        b.velocity(_pose(1.0, 0.1, 0.0, 0.5))  # time went backwards
+    assert e.value.reason == "pose_time"
+    assert b.velocity(_pose(1.0, 0.15, 0.0, 0.55)) == pytest.approx((0.0, 1.0))
+
+
+@pytest.mark.parametrize(
+    ("pose", "goal", "delta", "d"),
+    [
+        ((0, 0, 0), (1, 0), 0.0, 1.0),
+        ((0, 0, 0), (0, 2), math.pi / 2, 2.0),  # goal on the left: δ > 0
+        ((0, 0, 0), (0, -2), -math.pi / 2, 2.0),
+        ((0, 0, 0), (-1, 0), -math.pi, 1.0),  # straight behind: -π, never +π
+        ((0, 0, 3 * math.pi / 4), (1, -1), -math.pi, math.sqrt(2)),
+        ((0, 0, -3 * math.pi / 4), (0, 1), -3 * math.pi / 4, 1.0),  # 5π/4 wraps
+        ((1, 1, 0.5), (1, 1), -0.5, 0.0),  # on the goal
+        ((0, 0, 0), (-1, 1e-9), math.pi - 1e-9, 1.0),
+    ],
+)
+def test_goal_features(pose, goal, delta, d):
+    got_delta, got_d = goal_features(*pose, *goal)
+    assert got_delta == pytest.approx(delta, abs=1e-12) and got_d == pytest.approx(d)
+    assert -math.pi <= got_delta < math.pi
+
+
+def test_build_layout():
+    b = ObservationBuilder(ObservationConfig(range_offset=0.2, bounds=BOUNDS), (1.0, 0.5))
+    zones_m = np.linspace(0.3, 1.1, 16)
+    obs0 = b.build(ring_scan(zones_m, 0.0), Pose(0.0, 0.0, math.pi / 2, 5.0, 0.0))
+    obs1 = b.build(ring_scan(zones_m, 0.0), Pose(0.0, 0.05, math.pi / 2, 5.1, 0.0))
+    assert obs1.dtype == np.float32 and obs1.shape == (20,)
+    np.testing.assert_allclose(obs1[:16], np.clip(zones_m - 0.2, 0, 1), atol=1e-7)
+    # heading +y, goal at (1, 0.45) relative: to the right ⇒ δ < 0
+    assert obs1[16] == np.float32(math.atan2(0.45, 1.0) - math.pi / 2)
+    assert obs1[17] == np.float32(math.hypot(1.0, 0.45))
+    assert tuple(obs0[18:]) == (0.0, 0.0) and obs1[18:] == pytest.approx([0.0, 0.5])
+
+
+def test_bad_pose_and_goal():
+    b = builder()
+    with pytest.raises(ObservationError) as e:
+        b.build(ring_scan(0.5, 0.0), Pose(np.nan, 0.0, 0.0, 1.0, 0.0))
+    assert e.value.reason == "pose_nan"
+    for goal in ((3.0, 0.0), (0.0, -1.6), (np.nan, 0.0)):
+        with pytest.raises(ObservationError) as e:
+            ObservationBuilder(ObservationConfig(bounds=BOUNDS), goal)
+        assert e.value.reason == "goal_outside"
+    with pytest.raises(ObservationError, match=r"goal \(3, 0\) is outside the arena bounds"):
+        ObservationBuilder(ObservationConfig(bounds=BOUNDS), (3.0, 0.0))
+    with pytest.raises(ValueError, match="max_speed"):
+        ObservationConfig(max_speed=0.0)
+
+
+def test_check_fresh():
+    check_fresh("scan", 9.8, 10.0, 0.3)
+    with pytest.raises(ObservationError, match="scan is 400 ms old .limit 300 ms") as e:
+        check_fresh("scan", 9.6, 10.0, 0.3)
+    assert e.value.reason == "stale_scan"
+    with pytest.raises(ObservationError) as e:
+        check_fresh("pose", float("nan"), 10.0, 0.3)
+    assert e.value.reason == "stale_pose"

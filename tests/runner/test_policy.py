@@ -1,0 +1,179 @@
+"""load_policy refuses every broken export with a message naming the file and the problem."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from advisor_jax.runner.errors import PolicyError
+from advisor_jax.runner.policy import config_hash, load_policy
+
+
+def _meta(d):
+    return json.loads((d / "policy.json").read_text())
+
+
+def _write_meta(d, meta):
+    (d / "policy.json").write_text(json.dumps(meta))
+
+
+def _resave_npz(d, name, edit, *, update_sha: bool):
+    """Rewrites an npz after ``edit(arrays)``; optionally fixes the sha in policy.json."""
+    with np.load(d / name) as npz:
+        arrays = {k: npz[k].copy() for k in npz.files}
+    edit(arrays)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    (d / name).write_bytes(buf.getvalue())
+    if update_sha:
+        meta = _meta(d)
+        key = "weights_sha256" if name == "policy.npz" else "golden_sha256"
+        meta[key] = hashlib.sha256(buf.getvalue()).hexdigest()
+        _write_meta(d, meta)
+
+
+@pytest.mark.parametrize("name", ["policy.json", "policy.npz", "golden.npz"])
+def test_missing_file(export_copy, name):
+    (export_copy / name).unlink()
+    with pytest.raises(PolicyError, match=rf"{name}: missing"):
+        load_policy(export_copy)
+
+
+def test_not_a_directory(tmp_path):
+    with pytest.raises(PolicyError, match="not a directory"):
+        load_policy(tmp_path / "nope")
+
+
+def test_truncated_weights(export_copy):
+    data = (export_copy / "policy.npz").read_bytes()
+    (export_copy / "policy.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(PolicyError, match=r"policy.npz: sha256 .* does not match"):
+        load_policy(export_copy)
+    # Even with a matching hash a truncated archive is reported as corrupt, not a traceback.
+    meta = _meta(export_copy)
+    meta["weights_sha256"] = hashlib.sha256(data[: len(data) // 2]).hexdigest()
+    _write_meta(export_copy, meta)
+    with pytest.raises(PolicyError, match="policy.npz: corrupt or truncated npz"):
+        load_policy(export_copy)
+
+
+def test_tampered_weights(export_copy):
+    def nudge(arrays):
+        arrays["hidden_1/kernel"][3, 7] += 0.5
+
+    _resave_npz(export_copy, "policy.npz", nudge, update_sha=False)
+    with pytest.raises(PolicyError, match="policy.npz: sha256"):
+        load_policy(export_copy)
+    # A forger who also fixes the hash is caught by the golden set.
+    _resave_npz(export_copy, "policy.npz", lambda a: None, update_sha=True)
+    with pytest.raises(PolicyError, match=r"golden.npz: numpy policy differs .* by"):
+        load_policy(export_copy)
+
+
+def test_transposed_kernel_in_file_is_refused(export_copy):
+    def transpose(arrays):
+        arrays["hidden_1/kernel"] = np.ascontiguousarray(arrays["hidden_1/kernel"].T)
+
+    _resave_npz(export_copy, "policy.npz", transpose, update_sha=True)
+    with pytest.raises(PolicyError, match="golden.npz: numpy policy differs"):
+        load_policy(export_copy)
+
+
+def test_tampered_golden(export_copy):
+    def nudge(arrays):
+        arrays["actions"][10, 1] += 1e-3
+
+    _resave_npz(export_copy, "golden.npz", nudge, update_sha=False)
+    with pytest.raises(PolicyError, match="golden.npz: sha256"):
+        load_policy(export_copy)
+    _resave_npz(export_copy, "golden.npz", lambda a: None, update_sha=True)
+    with pytest.raises(PolicyError, match=r"differs .* by 0.001 \(row 10"):
+        load_policy(export_copy)
+
+
+def test_nan_weights(export_copy):
+    def poison(arrays):
+        arrays["head/bias"][0] = np.nan
+
+    _resave_npz(export_copy, "policy.npz", poison, update_sha=True)
+    with pytest.raises(PolicyError, match="head/bias contains NaN"):
+        load_policy(export_copy)
+
+
+def test_wrong_dtype_and_shape(export_copy):
+    def widen(arrays):
+        arrays["hidden_0/bias"] = arrays["hidden_0/bias"].astype(np.float64)
+
+    _resave_npz(export_copy, "policy.npz", widen, update_sha=True)
+    with pytest.raises(PolicyError, match=r"hidden_0/bias is float64\[48\].*float32\[48\]"):
+        load_policy(export_copy)
+
+
+def test_layer_sizes_must_match_json(export_copy):
+    meta = _meta(export_copy)
+    meta["layers"][1]["out"] = 47
+    _write_meta(export_copy, meta)
+    with pytest.raises(PolicyError, match="hidden_1/kernel is float32\\[48, 48\\]"):
+        load_policy(export_copy)
+
+
+@pytest.mark.parametrize("version", [2, 0, None, "1"])
+def test_wrong_schema(export_copy, version):
+    meta = _meta(export_copy)
+    meta["schema_version"] = version
+    _write_meta(export_copy, meta)
+    with pytest.raises(PolicyError, match="policy.json: unsupported schema_version"):
+        load_policy(export_copy)
+
+
+def test_edited_metadata_breaks_config_hash(export_copy):
+    meta = _meta(export_copy)
+    meta["env"]["bounds"] = [-10, 10, -10, 10]
+    _write_meta(export_copy, meta)
+    with pytest.raises(PolicyError, match="config_hash does not match"):
+        load_policy(export_copy)
+    meta["config_hash"] = config_hash(meta["config"], meta["env"])
+    _write_meta(export_copy, meta)
+    assert load_policy(export_copy).bounds == (-10, 10, -10, 10)
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "message"),
+    [
+        ("sensors", "zone_start_deg", 67.5, "zone definition"),
+        ("observation", "names", ["x"] * 20, "observation layout"),
+        ("control", "omega_max", -1.0, "omega_max=-1.0 must be a positive"),
+        ("control", "dt", None, "dt=None must be a positive"),
+    ],
+)
+def test_layout_and_control_checks(export_copy, section, key, value, message):
+    meta = _meta(export_copy)
+    meta[section][key] = value
+    _write_meta(export_copy, meta)
+    with pytest.raises(PolicyError, match=message):
+        load_policy(export_copy)
+
+
+def test_garbage_json(export_copy):
+    (export_copy / "policy.json").write_text("{not json")
+    with pytest.raises(PolicyError, match="policy.json: not valid JSON"):
+        load_policy(export_copy)
+    (export_copy / "policy.json").write_text("[1, 2]")
+    with pytest.raises(PolicyError, match="top level must be a JSON object"):
+        load_policy(export_copy)
+
+
+def test_act_validates_observations(policy):
+    with pytest.raises(PolicyError, match=r"shape \[20\] or \[N, 20\]"):
+        policy.act(np.zeros(19))
+    obs = np.zeros(20)
+    obs[17] = np.nan
+    with pytest.raises(PolicyError, match="non-finite values in d"):
+        policy.act(obs)
+    out = policy.act(np.zeros((5, 20)))
+    assert out.dtype == np.float32 and out.shape == (5, 2)
+    assert ((out[:, 0] >= 0) & (out[:, 0] <= 1) & (np.abs(out[:, 1]) <= 1)).all()

@@ -1,0 +1,79 @@
+"""Shared, compiled-once fixtures for the training tests.
+
+One tiny ATD3+AfDP configuration is compiled twice per session: as a vmapped population
+(``run.population_functions``, also reused by ``run_training``) and as a single agent.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from advisor_jax.config import HParams, TrainConfig, parse_agent
+from advisor_jax.run import population_functions
+from advisor_jax.sweep import agent_keys, build_population
+
+TINY = TrainConfig(
+    agent=parse_agent(
+        "ATD3+AfDP",
+        actor_hidden=(16, 16),
+        critic_state_hidden=32,
+        critic_hidden=(32, 32),
+        buffer_size=512,
+        batch_size=32,
+        policy_delay=2,
+    ),
+    arena="training",
+    episodes=3,
+    chunk_steps=40,
+    max_episode_steps=40,
+)
+N_CHUNKS = 3  # 3 × 40 steps ≥ 3 episodes × h_max 40: every agent finishes
+GOOD = 4  # agents 0..3 are healthy; agent 4 has an absurd critic learning rate
+
+
+def _population():
+    base = HParams(lr_actor=1e-3, advisor_episodes=1.0)
+    hp, agents = build_population(base, {"beta": [0.01, 0.3]}, seeds=[0, 1])
+    # A fifth agent that must diverge: Adam steps of 1e38 overflow the critic.
+    bad = base.replace(lr_critic=1e38)
+    hp = jax.tree_util.tree_map(lambda col, v: jnp.append(col, jnp.float32(v)), hp, bad)
+    seeds = [a["seed"] for a in agents] + [0]
+    return hp, seeds
+
+
+def run_chunks(init_fn, chunk_fn, key, hp, n_chunks=N_CHUNKS, state=None, first=0):
+    state = init_fn(key) if state is None else state
+    for c in range(first, n_chunks):
+        state, _ = chunk_fn(state, hp, jnp.int32(c * TINY.chunk_steps))
+    return state
+
+
+@pytest.fixture(scope="session")
+def population():
+    """The final state of the 5-agent vmapped run, as numpy."""
+    trainer, init_fn, chunk_fn = population_functions(TINY)
+    hp, seeds = _population()
+    state = run_chunks(init_fn, chunk_fn, agent_keys(seeds), hp)
+    return jax.device_get(state), hp, seeds
+
+
+@pytest.fixture(scope="session")
+def single_runs(population):
+    """The healthy agents run one by one with the unvmapped functions."""
+    _, hp, seeds = population
+    trainer = population_functions(TINY)[0]
+    init_fn, chunk_fn = jax.jit(trainer.init), jax.jit(trainer.chunk)
+    out = []
+    for i in range(GOOD):
+        hp_i = jax.tree_util.tree_map(lambda x, i=i: x[i], hp)
+        out.append(
+            jax.device_get(run_chunks(init_fn, chunk_fn, jax.random.PRNGKey(seeds[i]), hp_i))
+        )
+    return out
+
+
+def agent_slice(tree, i):
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[i], tree)
