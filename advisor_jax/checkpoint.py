@@ -15,6 +15,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import orbax.checkpoint as ocp
 
 _KEEP = 2
@@ -34,13 +35,22 @@ def _storable(tree: Any) -> dict[str, Any]:
 
 
 def _rebuild(stored: dict[str, Any], abstract: Any) -> Any:
-    """Inverse of ``_storable`` given the tree structure: empty leaves are recreated."""
+    """Inverse of ``_storable`` given the tree structure: empty leaves are recreated.
+
+    Every leaf comes back as an uncommitted array, like the output of a fresh ``init``:
+    orbax returns a mix of committed and uncommitted arrays, and jit keys its cache on
+    that, so a resumed run would otherwise recompile its chunk function.
+    """
     leaves, treedef = jax.tree_util.tree_flatten(abstract)
     full = [
-        stored[f"{i:04d}"] if leaf.size else jnp.zeros(leaf.shape, leaf.dtype)
+        _uncommitted(stored[f"{i:04d}"]) if leaf.size else jnp.zeros(leaf.shape, leaf.dtype)
         for i, leaf in enumerate(leaves)
     ]
     return jax.tree_util.tree_unflatten(treedef, full)
+
+
+def _uncommitted(x) -> jax.Array:
+    return jnp.asarray(np.asarray(x))
 
 
 def save_step(directory: str | Path, step: int, state: Any) -> None:
@@ -90,10 +100,7 @@ def load_tree(path: str | Path, abstract: Any | None = None) -> Any:
         raise ValueError(f"no saved parameters at {path}")
     try:
         with ocp.StandardCheckpointer() as ckptr:
-            return ckptr.restore(path, abstract) if abstract is not None else ckptr.restore(path)
+            tree = ckptr.restore(path, abstract) if abstract is not None else ckptr.restore(path)
     except Exception as e:
         raise ValueError(f"parameters at {path} are unreadable: {e}") from e
-
-
-def to_numpy(tree: Any) -> Any:
-    return jax.tree_util.tree_map(lambda x: jax.device_get(x), tree)
+    return jax.tree_util.tree_map(_uncommitted, tree)

@@ -3,6 +3,9 @@
     advisor-jax arena training --xml training.xml          # standalone MJCF of an arena
     advisor-jax arena procedural --seed 3 --xml p3.xml      # a procedural layout
     advisor-jax evaluate --policy advisor --arena validation --episodes 500 [--json]
+    advisor-jax train [--preset quick|paper|physical] [--agent ATD3+AfDP] [--seeds N] [--grid ...]
+    advisor-jax evaluate --policy runs/NAME:0 --arena validation   # agent 0 of a run
+    advisor-jax export runs/NAME --agent 0 --out policy/ [--onnx]
 
 To add a subcommand, write a function with type-hinted keyword arguments and a docstring
 (tyro turns them into flags and ``--help``) and add it to ``SUBCOMMANDS``. ``main`` turns
@@ -25,7 +28,9 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
+from advisor_jax.export_cli import ExportArgs, export_command
 from advisor_jax.runner.errors import RunnerError
+from advisor_jax.train_cli import TrainArgs, train_command
 
 
 def _envs():
@@ -62,15 +67,43 @@ def arena(
 
 
 def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
-    """``(policy_apply, params)`` for a policy name; ``policy_apply(params, obs) -> action``.
+    """``(policy_apply, params)`` for a policy spec; ``policy_apply(params, obs) -> action``.
 
-    Knows ``advisor`` (Algorithm A1 with the arena's T_o). Extend here for trained policies.
+    Specs: ``advisor`` (Algorithm A1 with the arena's T_o); ``RUN_DIR[:AGENT]``, the final
+    actor of agent AGENT (default 0) of a training run; ``EXPORT_DIR``, an exported policy
+    (verified like the car runner does).
     """
     if policy == "advisor":
         from advisor_jax.advisor import advisor_action
 
         return (lambda params, obs: advisor_action(obs, params)), env.advisor_params
-    raise ValueError(f"unknown policy {policy!r}; known policies: advisor")
+    from advisor_jax.networks import Actor
+
+    path, sep, suffix = policy.rpartition(":")
+    index = int(suffix) if sep and suffix.isdigit() else 0
+    directory = Path(path if sep and suffix.isdigit() else policy)
+    if (directory / "policy.json").is_file():
+        from advisor_jax.closed_loop import actor_params_from_policy
+        from advisor_jax.runner.policy import load_policy
+
+        loaded = load_policy(directory)
+        omega = env.config.omega_max
+        if abs(loaded.omega_max - omega) > 1e-9:
+            raise ValueError(
+                f"{directory} was exported with omega_max={loaded.omega_max:g} rad/s but the "
+                f"arena uses {omega:g}"
+            )
+        params, hidden = actor_params_from_policy(loaded)
+        return Actor(hidden=hidden).apply, params
+    if (directory / "run.json").is_file():
+        from advisor_jax.runs import load_actor
+
+        cfg, _, params = load_actor(directory, index)
+        return Actor(hidden=cfg.agent.actor_hidden).apply, params
+    raise ValueError(
+        f"unknown policy {policy!r}: use 'advisor', a training run directory RUN[:AGENT] "
+        "or an export directory (with policy.json)"
+    )
 
 
 def evaluate(
@@ -86,7 +119,8 @@ def evaluate(
     prints the success, collision and timeout rates and the mean collision speed.
 
     Args:
-      policy: Policy to evaluate: advisor (the paper's rule-based advisor, Alg. A1).
+      policy: advisor (the paper's rule-based advisor, Alg. A1), a training run directory
+        RUN[:AGENT] (agent index, default 0) or an export directory.
       arena: Arena: training, validation, physical or procedural.
       episodes: Number of test episodes (the paper uses 500 for the advisor).
       seed: Seed of the episodes' starts, goals (and procedural layouts).
@@ -126,7 +160,26 @@ def _print_table(result: dict) -> None:
     Console().print(table)
 
 
-SUBCOMMANDS: dict[str, Callable[..., Any]] = {"arena": arena, "evaluate": evaluate}
+def train(args: Annotated[TrainArgs, tyro.conf.arg(name="")]) -> None:
+    """Train a population of advisor-based agents (seeds × hyperparameter grid, one compile).
+
+    Writes run.json, params/, metrics.npz, episodes.csv, eval.json and learning_curve.png
+    into --out; interrupted runs continue with --resume.
+    """
+    train_command(args)
+
+
+def export(args: Annotated[ExportArgs, tyro.conf.arg(name="")]) -> None:
+    """Export one trained agent for the numpy car runner (policy.npz/json, golden.npz)."""
+    export_command(args)
+
+
+SUBCOMMANDS: dict[str, Callable[..., Any]] = {
+    "train": train,
+    "evaluate": evaluate,
+    "export": export,
+    "arena": arena,
+}
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -6,6 +6,7 @@ starts and goals): differences between agents are then paired, not sampling nois
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import jax
@@ -13,11 +14,21 @@ import numpy as np
 
 import envs
 from advisor_jax import evaluate
+from advisor_jax.networks import Actor
+
+
+@functools.lru_cache(maxsize=16)
+def population_evaluator(arena: str, max_episode_steps: int, episodes: int, hidden: tuple):
+    """jit(vmap over agents) of the evaluation of ``Actor(hidden)`` in ``arena``; cached."""
+    overrides = {"max_episode_steps": max_episode_steps} if max_episode_steps else {}
+    env = envs.make_env(arena, **overrides)
+    fn = evaluate.make_evaluate(env, Actor(hidden=hidden).apply, episodes)
+    return jax.jit(jax.vmap(fn, in_axes=(0, None)))
 
 
 def evaluate_population(
     actor_params,
-    policy_apply,
+    actor_hidden: Sequence[int],
     *,
     arenas: Sequence[str],
     episodes: int,
@@ -29,7 +40,7 @@ def evaluate_population(
 
     Args:
       actor_params: actor params stacked on a leading agent axis.
-      policy_apply: (params, obs [20]) -> action [2].
+      actor_hidden: hidden widths of the actor (``AgentConfig.actor_hidden``).
       arenas: arena names, e.g. ("training", "validation").
       episodes: evaluation episodes per agent and arena (the paper uses 100).
       key: PRNG key of the episodes (shared by all agents).
@@ -40,12 +51,11 @@ def evaluate_population(
       ``{arena: {"success": [...], "collision": [...], "timeout": [...],
       "collision_speed": [...], "episodes": n}}`` with one entry per agent.
     """
-    overrides = {"max_episode_steps": max_episode_steps} if max_episode_steps else {}
     out = {}
+    hidden = tuple(int(w) for w in actor_hidden)
     for arena in arenas:
-        env = envs.make_env(arena, **overrides)
-        fn = evaluate.make_evaluate(env, policy_apply, episodes)
-        metrics = jax.jit(jax.vmap(fn, in_axes=(0, None)))(actor_params, key)
+        evaluator = population_evaluator(arena, int(max_episode_steps), int(episodes), hidden)
+        metrics = evaluator(actor_params, key)
         rates = {
             "success": evaluate.success_rate(metrics),
             "collision": evaluate.collision_rate(metrics),

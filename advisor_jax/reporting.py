@@ -44,7 +44,7 @@ class _Bar:
         if self.progress is None:
             return
         info = f"step {line['step']:,}  {line['steps_per_second']:,.0f} steps/s"
-        if not math.isnan(line.get("loss/critic", math.nan)):
+        if line.get("loss/critic") is not None:
             info += f"  critic loss {line['loss/critic']:.3g}"
         self.progress.update(self.task, completed=completed, info=info)
 
@@ -69,7 +69,11 @@ def training_progress(console: Console, total_episodes: int, disable: bool = Fal
 
 
 def chunk_line(step: int, seconds: float, episodes: np.ndarray, metrics: Mapping) -> dict:
-    """One JSON line per chunk: progress and mean losses over agents and steps."""
+    """One JSON line per chunk: progress and mean losses over agents and steps.
+
+    A metric with no finite value in the chunk (no update ran yet, or every agent has
+    diverged) is ``None`` so that the line stays strict JSON.
+    """
     line = {
         "step": int(step),
         "seconds": round(seconds, 3),
@@ -80,8 +84,9 @@ def chunk_line(step: int, seconds: float, episodes: np.ndarray, metrics: Mapping
     for name, value in metrics.items():
         if name.startswith("train/"):
             continue
-        value = np.asarray(value, np.float64)
-        line[name] = float(np.nanmean(value)) if np.isfinite(value).any() else math.nan
+        finite = np.asarray(value, np.float64)
+        finite = finite[np.isfinite(finite)]
+        line[name] = float(finite.mean()) if finite.size else None
     return line
 
 
@@ -196,6 +201,10 @@ def plot_learning_curves(path: Path, metrics, agents, grid, cfg) -> None:
             std = np.nanstd(curves, axis=0) if len(members) > 1 else np.zeros_like(mean)
             (line,) = ax.plot(episodes, mean, label=f"{label} (n={len(members)})")
             ax.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+    if cfg.agent.advisor_data:
+        expected = np.nanmean(metrics["expected_max_firing_rate"][keep], axis=0)
+        axes[2].plot(episodes, expected, "r--", lw=1, label="Eq. (11) expected maximum")
+        axes[2].legend(fontsize=8)
     for ax, (title, _) in zip(axes, panels, strict=True):
         ax.set_xlabel("episode")
         ax.set_title(f"{title} (moving average, w={window})")

@@ -53,8 +53,12 @@ def run_training(
     resume: bool = False,
     progress: bool = True,
     console: Console | None = None,
+    meta: Mapping | None = None,
 ) -> dict:
-    """Trains, evaluates and saves a population; returns the summary written to run.json."""
+    """Trains, evaluates and saves a population; returns the summary written to run.json.
+
+    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is.
+    """
     console = console or Console(stderr=True)
     out_dir = Path(out_dir)
     run_file = out_dir / "run.json"
@@ -74,6 +78,7 @@ def run_training(
         "device": str(jax.devices()[0].device_kind),
         "config": dataclasses.asdict(cfg),
         "agent": cfg.agent.name,
+        **(meta or {}),
         "grid": {k: list(map(float, v)) for k, v in grid.items()},
         "agents": agents,
         "status": "running",
@@ -114,7 +119,7 @@ def run_training(
                 reported |= diverged
                 line = reporting.chunk_line(step, time.perf_counter() - t_start, episodes, metrics)
                 with open(log_path, "a") as f:
-                    f.write(json.dumps(line) + "\n")
+                    f.write(json.dumps(line, allow_nan=False) + "\n")
                 bar.update(int(episodes.sum()), line)
                 if np.all((episodes >= n_total) | diverged):
                     break
@@ -135,7 +140,7 @@ def run_training(
     if eval_episodes:
         evaluation = evaluate_population(
             state.learner.actor,
-            trainer.policy_apply,
+            cfg.agent.actor_hidden,
             arenas=eval_arenas,
             episodes=eval_episodes,
             max_episode_steps=cfg.max_episode_steps,

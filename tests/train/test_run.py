@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -9,28 +10,49 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax import checkpoint
-from advisor_jax.config import AgentConfig, HParams, parse_agent, validate_hparams
+from advisor_jax import checkpoint, reporting
+from advisor_jax.config import AgentConfig, HParams, parse_agent, preset, validate_hparams
+from advisor_jax.evaluation_runs import evaluate_population
 from advisor_jax.run import population_functions, run_training
 from advisor_jax.sweep import agent_keys, build_population, parse_assignments
 from tests.train.conftest import N_CHUNKS, TINY, agent_slice, run_chunks
 
+QUICK = dataclasses.replace(preset("quick")[0], episodes=25, chunk_steps=500)
+EVAL_EPISODES = 50
+
 
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
+    """A short CPU run of ATD3+AfDP (quick preset, 2 seeds, 25 episodes each)."""
     out = tmp_path_factory.mktemp("run")
     summary = run_training(
-        TINY,
-        HParams(lr_actor=1e-3),
-        {"beta": [0.01, 0.3]},
-        seeds=[3],
+        QUICK,
+        preset("quick")[1],
+        {},
+        seeds=[0, 1],
         out_dir=out,
-        eval_episodes=6,
+        eval_episodes=EVAL_EPISODES,
         eval_arenas=("training",),
-        checkpoint_every=1,
+        checkpoint_every=0,
         progress=False,
     )
     return out, summary
+
+
+def test_short_cpu_run_beats_its_untrained_actor(finished_run):
+    _, summary = finished_run
+    _, init_fn, _ = population_functions(QUICK)
+    untrained = init_fn(agent_keys([0, 1]))  # the same initial actors, before training
+    before = evaluate_population(
+        untrained.learner.actor,
+        QUICK.agent.actor_hidden,
+        arenas=("training",),
+        episodes=EVAL_EPISODES,
+        key=jax.random.PRNGKey(10_000),  # the run's evaluation episodes (seed 0)
+    )["training"]["success"]
+    after = summary["evaluation"]["training"]["success"]
+    assert np.mean(after) >= np.mean(before) + 0.15, (before, after)
+    assert min(after) > max(before), (before, after)
 
 
 def test_run_writes_every_output(finished_run):
@@ -39,38 +61,61 @@ def test_run_writes_every_output(finished_run):
         assert (out / name).is_file(), name
     saved = json.loads((out / "run.json").read_text())
     assert saved["status"] == "finished" and saved["agent"] == "ATD3+AfDP"
-    assert [a["beta"] for a in saved["agents"]] == pytest.approx([0.01, 0.3])
+    assert [a["seed"] for a in saved["agents"]] == [0, 1]
     metrics = np.load(out / "metrics.npz")
-    assert metrics["outcome"].shape == (2, TINY.episodes)
+    assert metrics["outcome"].shape == (2, QUICK.episodes)
     assert np.all(metrics["outcome"] > 0)
+    assert np.all((metrics["firing_rate"] >= 0) & (metrics["firing_rate"] <= 1))
     rows = (out / "episodes.csv").read_text().strip().splitlines()
-    assert len(rows) == 1 + 2 * TINY.episodes
+    assert len(rows) == 1 + 2 * QUICK.episodes
     ev = json.loads((out / "eval.json").read_text())["training"]
-    assert len(ev["success"]) == 2 and ev["episodes"] == 6
-    assert all(0.0 <= s <= 1.0 for s in ev["success"])
+    assert len(ev["success"]) == 2 and ev["episodes"] == EVAL_EPISODES
+    log = [
+        json.loads(line, parse_constant=lambda c: pytest.fail(f"{c} in train_log.jsonl"))
+        for line in (out / "train_log.jsonl").read_text().splitlines()
+    ]
+    assert log and all(line["loss/critic"] is None or line["loss/critic"] >= 0 for line in log)
+
+
+def test_chunk_line_is_strict_json_without_updates():
+    metrics = {"loss/actor": np.full((2, 4), np.nan), "loss/critic": np.array([np.inf, 2.0])}
+    line = reporting.chunk_line(500, 1.0, np.array([3, 4]), metrics)
+    assert line["loss/actor"] is None and line["loss/critic"] == 2.0
+    json.dumps(line, allow_nan=False)
 
 
 def test_saved_parameters_load_and_evaluate_identically(finished_run):
-    from advisor_jax.evaluation_runs import evaluate_population
-
     out, summary = finished_run
     params = checkpoint.load_tree(out / "params")
-    trainer = population_functions(TINY)[0]
     again = evaluate_population(
         params["actor"],
-        trainer.policy_apply,
+        QUICK.agent.actor_hidden,
         arenas=("training",),
-        episodes=6,
-        key=jax.random.PRNGKey(10_000 + 3),
-        max_episode_steps=TINY.max_episode_steps,
+        episodes=EVAL_EPISODES,
+        key=jax.random.PRNGKey(10_000),
     )
     assert again["training"]["success"] == summary["evaluation"]["training"]["success"]
+
+
+def test_export_cli_writes_a_policy_the_runner_accepts(finished_run, tmp_path):
+    from advisor_jax.cli import main
+    from advisor_jax.runner.policy import load_policy
+
+    out, _ = finished_run
+    main(["export", str(out), "--agent", "1", "--out", str(tmp_path / "policy")])
+    policy = load_policy(tmp_path / "policy")
+    assert policy.meta["config"]["agent"] == "ATD3+AfDP"
+    assert policy.meta["config"]["seed"] == 1
+    assert policy.meta["env"]["arena"] == "training"
+    with pytest.raises(SystemExit) as exit_info:
+        main(["export", str(out), "--agent", "7", "--out", str(tmp_path / "bad")])
+    assert exit_info.value.code == 2
 
 
 def test_existing_run_needs_resume(finished_run):
     out, _ = finished_run
     with pytest.raises(ValueError, match="--resume"):
-        run_training(TINY, HParams(), {}, [0], out, progress=False)
+        run_training(QUICK, HParams(), {}, [0], out, progress=False)
 
 
 def test_checkpoint_resume_equals_uninterrupted(population, tmp_path):
