@@ -1,0 +1,120 @@
+"""Paper Fig. 6: success of ADDPG+AfD agents against the advisor's terminal episode N_T.
+
+The whole sweep (every N_T × every seed) is ONE vmapped program and one compile: N_T is a
+scalar hyperparameter (``HParams.advisor_episodes``).
+
+    python experiments/sweep_nt.py --episodes 200 --seeds 4 --nt 0 50 100 150 200 \\
+        --runs runs/sweep_nt --out results
+
+Writes ``results/sweep_nt.md`` and ``results/sweep_nt.png`` (mean ± 95 % CI over seeds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from advisor_jax.config import preset
+from advisor_jax.reporting import group_agents, mean_ci95
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", default="paper")
+    parser.add_argument("--agent", default="ADDPG+AfD")
+    parser.add_argument("--episodes", type=int, default=0, help="N_total (0 = the preset's)")
+    parser.add_argument("--nt", type=float, nargs="+", default=[0, 100, 200, 300, 400, 500])
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--eval-episodes", type=int, default=100)
+    parser.add_argument("--runs", type=Path, default=Path("runs/sweep_nt"))
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--summarize-only", action="store_true")
+    args = parser.parse_args()
+
+    if not args.summarize_only:
+        from advisor_jax.run import run_training
+
+        cfg, hp = preset(args.preset, args.agent)
+        cfg = dataclasses.replace(cfg, episodes=args.episodes or cfg.episodes)
+        run_training(
+            cfg,
+            hp,
+            {"advisor_episodes": args.nt},
+            list(range(args.seeds)),
+            args.runs,
+            eval_episodes=args.eval_episodes,
+            checkpoint_every=0,
+            progress=False,
+            meta={"preset": args.preset},
+        )
+    summary = json.loads((args.runs / "run.json").read_text())
+    grid = summary["grid"]
+    ev = summary["evaluation"]
+    rows = []
+    for (n_t,), members in group_agents(summary["agents"], grid).items():
+        cells = {"N_T": n_t}
+        for arena in ev:
+            values = [100 * ev[arena]["success"][m] for m in members]
+            cells[arena] = mean_ci95([v for v in values if v is not None])
+        rows.append(cells)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
+    n_total = summary["config"]["episodes"]
+    for arena in ev:
+        x = [100 * r["N_T"] / n_total for r in rows]
+        mean = np.array([r[arena][0] for r in rows])
+        half = np.nan_to_num(np.array([r[arena][1] for r in rows]))
+        ax.errorbar(x, mean, yerr=half, marker="o", capsize=3, label=f"{arena} env")
+    ax.set_xlabel("advisor contribution N_T / N_total (%)")
+    ax.set_ylabel("success rate (%)")
+    ax.set_title(f"{summary['agent']}, {n_total} episodes (Fig. 6)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format="png")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "sweep_nt.png").write_bytes(buf.getvalue())
+
+    arenas = list(ev)
+    nt_values = " ".join(f"{r['N_T']:g}" for r in rows)
+    lines = [
+        "# Fig. 6: success against the advisor's terminal episode N_T",
+        "",
+        f"{summary['agent']}, {n_total} training episodes in `{summary['config']['arena']}`, "
+        f"{len(summary['agents'])} agents ({len(rows)} values of N_T × "
+        f"{len(summary['agents']) // len(rows)} seeds) in one vmapped program; "
+        f"{summary['train_seconds']:.0f} s of training on {summary['device']} "
+        f"({summary['created'][:10]}). Evaluation: {ev[arenas[0]]['episodes']} episodes per "
+        "arena, the same for every agent. Mean ± 95 % CI over seeds.",
+        "",
+        "| N_T | N_T / N_total | " + " | ".join(f"{a} env success (%)" for a in arenas) + " |",
+        "|---:|---:|" + "---:|" * len(arenas),
+    ]
+    for r in rows:
+        cells = " | ".join(f"{r[a][0]:.1f} ± {r[a][1]:.1f}" for a in arenas)
+        lines.append(f"| {r['N_T']:g} | {100 * r['N_T'] / n_total:.0f} % | {cells} |")
+    lines += [
+        "",
+        "![success vs N_T](sweep_nt.png)",
+        "",
+        f"Command: `python experiments/sweep_nt.py --preset {args.preset} --agent {args.agent} "
+        f"--episodes {n_total} --seeds {len(summary['agents']) // len(rows)} --nt "
+        f"{nt_values} --runs {args.runs} --out {args.out}`",
+        "",
+    ]
+    (args.out / "sweep_nt.md").write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
