@@ -20,6 +20,7 @@ from advisor_jax.runner.observation import (
     Scan,
     check_fresh,
     goal_features,
+    rplidar_zones,
     scan_to_robot_frame,
 )
 
@@ -153,6 +154,13 @@ def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
     np.testing.assert_array_equal(
         zones.reduce_to_zones(angles, ranges, valid, range_offset=offset), ref
     )
+    # and the car's per-cycle reduction straight from RPLIDAR points
+    points = np.stack([np.full(n, 15.0), deg, mm], 1)
+    kept = valid & (mm > 0)
+    np.testing.assert_array_equal(
+        rplidar_zones(points, kept, mount_yaw_deg=yaw, range_offset=offset),
+        zones.reduce_to_zones(angles, ranges, kept, range_offset=offset, xp=_generic_numpy()),
+    )
 
 
 @pytest.mark.parametrize(
@@ -164,11 +172,12 @@ def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
         (np.zeros((0, 3)), "scan_empty"),
         ([("a", "b", "c")], "scan_format"),
         (np.array([[15.0, 10.0, -5.0]]), "scan_format"),
+        (np.array([[15.0, 1e308, 1e308]] * 3), "scan_format"),
         (np.array([[0.0, 10.0, 0.0]] * 10), "scan_empty"),
     ],
 )
 def test_bad_scans(points, reason):
-    with pytest.raises(ObservationError) as e:
+    with pytest.raises(ObservationError) as e, np.errstate(over="ignore"):
         builder().zones(Scan(points, 0.0))
     assert e.value.reason == reason
 
