@@ -1,8 +1,9 @@
 """Ornstein–Uhlenbeck exploration noise (Alg. 1 step 13, Alg. A2 step 15).
 
 The paper adds OU noise [54] to the selected action but gives no parameters; ours are
-``HParams.ou_theta`` (θ = 0.15) and ``HParams.ou_sigma`` (σ = 0.2, normalised action
-units), the values of the original DDPG paper. One step of the discrete process (unit
+``HParams.ou_theta`` (θ = 0.15, as in the original DDPG paper) and ``HParams.ou_sigma``
+(σ = 0.1 in normalised action units, half of DDPG's 0.2, which drove the advisor itself
+into obstacles; see ``config.py``). One step of the discrete process (unit
 time step, as in DDPG implementations)::
 
     x_{t+1} = x_t + θ (μ - x_t) + σ ξ_t,    ξ_t ~ N(0, I)

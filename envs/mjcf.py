@@ -23,14 +23,20 @@ The XML loads in plain MuJoCo (``mujoco.MjModel.from_xml_string``) and in the vi
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import math
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+
+# mujoco-mjx 3.17 prints "Failed to import warp" on import when the optional NVIDIA Warp
+# backend is absent; we use the JAX backend only, so keep that line off the user's screen.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 
 from advisor_jax.runner import spec
 from advisor_jax.runner.zones import reduce_to_zones

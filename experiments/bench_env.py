@@ -161,7 +161,7 @@ def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
     """Parts of a step, each in the same scan shape as the step: the sensor pass the env
     uses (pose written to qpos, ``mjx.kinematics`` + ``mjx.sensor_pos``), the alternative
     of DESIGN.md (joint velocities, then a full ``mjx.step``), and ``reset`` alone."""
-    from mujoco import mjx
+    from envs.mjcf import mjx
 
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
     proximity = jax.vmap(env.proximity)
