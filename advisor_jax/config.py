@@ -158,6 +158,8 @@ class HParams:
     eps_start: float = 0.85  # ε_st, Eq. (1)
     eps_decay: float = 0.0015  # b, Eq. (1): per episode (paper's 0.15 read per 100)
     advisor_episodes: float = 250.0  # N_T, Eq. (1): advisor off once N > N_T
+    advisor_policy_episodes: float = 1e9  # N_P (ours): AfP replacement only while N <= N_P;
+    # the paper replaces for the whole run, which the default (never reached) keeps
     ou_theta: float = 0.15  # Ornstein–Uhlenbeck mean reversion
     ou_sigma: float = 0.1  # Ornstein–Uhlenbeck scale (normalised action units)
     target_noise: float = 0.1  # σ̄, TD3 target smoothing (Table A4)
@@ -176,6 +178,7 @@ _HPARAM_RANGES = {
     "eps_start": (0.0, 1.0, True, True),
     "eps_decay": (0.0, math.inf, True, False),
     "advisor_episodes": (0.0, math.inf, True, False),
+    "advisor_policy_episodes": (0.0, math.inf, True, False),
     "ou_theta": (0.0, math.inf, True, False),
     "ou_sigma": (0.0, math.inf, True, False),
     "target_noise": (0.0, math.inf, True, False),

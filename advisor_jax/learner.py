@@ -31,6 +31,9 @@ Choices where the paper is loose, all standard:
 * Twin critics are one params tree with a leading axis (``networks.init_critics``), one
   loss (the sum of the per-critic losses, so each critic gets its own gradient) and one
   Adam. Q_1 (index 0) drives the actor (Alg. A3 step 17) and the AfP mask (step 19).
+* ``HParams.advisor_policy_episodes`` (N_P, ours) turns the AfP replacement off once the
+  agent has completed more than N_P episodes (``actor_step``'s ``episode``), as N_T does
+  for the advisor in data collection; its default (10^9) keeps the paper's Alg. 2.
 * Learning rates are traced (``HParams``), so the Adam transformations are built inside
   the step functions; their state structure does not depend on the learning rate.
 
@@ -80,7 +83,7 @@ class Learner(NamedTuple):
     the min over the critics (Alg. A2 steps 11-12); Q itself for one critic."""
     critic_step: Callable[[LearnerState, Transition, jax.Array, HParams], tuple[Any, Metrics]]
     """(state, batch, key, hp) -> (state, metrics): one critic update."""
-    actor_step: Callable[[LearnerState, Transition, HParams], tuple[Any, Metrics]]
+    actor_step: Callable[..., tuple[Any, Metrics]]  # (state, batch, hp, episode=0)
     """(state, batch, hp) -> (state, metrics): one actor update and the soft update of all
     targets."""
 
@@ -135,6 +138,7 @@ def addpg_actor_targets(
     advisor_actions: jax.Array,
     beta: jax.Array | float,
     advisor_policy: bool,
+    replace_allowed: jax.Array | bool = True,
 ) -> tuple[jax.Array, jax.Array]:
     """Â of Eq. (2) with the AfP replacement (Alg. 2 steps 9-13): ``(a_hat, replaced)``.
 
@@ -143,6 +147,8 @@ def addpg_actor_targets(
       obs: [n, 20]; actor_actions: [n, 2] = π(S); advisor_actions: [n, 2] = A_adv.
       beta: β of Eq. (2).
       advisor_policy: static; AfP on (steps 11-13) or off (plain ADDPG).
+      replace_allowed: traced bool; False turns the replacement off for this update (our
+        ``advisor_policy_episodes`` N_P; the paper always replaces).
 
     Returns:
       a_hat [n, 2] (no gradient flows through it) and replaced [n] bool, the samples where
@@ -156,7 +162,7 @@ def addpg_actor_targets(
         return a_hat, jnp.zeros(a_hat.shape[:-1], bool)
     # One critic call on [2, n] rather than two on [n].
     q_hat, q_adv = q_fn(jnp.stack([obs, obs]), jnp.stack([a_hat, advisor_actions]))
-    replaced = q_adv > q_hat  # [n]
+    replaced = (q_adv > q_hat) & replace_allowed  # [n]
     a_hat = jnp.where(replaced[:, None], advisor_actions, a_hat)
     return jax.lax.stop_gradient(a_hat), replaced
 
@@ -243,7 +249,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
         return new_state, metrics
 
     def actor_step(
-        state: LearnerState, batch: Transition, hp: HParams
+        state: LearnerState, batch: Transition, hp: HParams, episode: jax.Array | int = 0
     ) -> tuple[LearnerState, Metrics]:
         q1_params = _first_critic(state.critic)
 
@@ -254,7 +260,13 @@ def make_learner(cfg: AgentConfig) -> Learner:
         actions, pullback = jax.vjp(lambda p: actor.apply(p, batch.obs), state.actor)
         if cfg.advisor_target:
             a_hat, replaced = addpg_actor_targets(
-                q1, batch.obs, actions, batch.advisor_action, hp.beta, cfg.advisor_policy
+                q1,
+                batch.obs,
+                actions,
+                batch.advisor_action,
+                hp.beta,
+                cfg.advisor_policy,
+                replace_allowed=episode <= hp.advisor_policy_episodes,
             )
             loss, dloss = jax.value_and_grad(mse_actor_loss)(actions, a_hat)
         else:

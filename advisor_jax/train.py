@@ -179,7 +179,7 @@ def make_train(cfg: TrainConfig, env=None) -> Trainer:
             update_actor = (step_index * cfg.updates_per_step + u) % delay == 0  # unbatched
             learner_state, actor_metrics = jax.lax.cond(
                 update_actor,
-                lambda ls: learner.actor_step(ls, batch, hp),
+                lambda ls: learner.actor_step(ls, batch, hp, state.episodes),
                 lambda ls: (ls, _nan_like(jax.eval_shape(learner.actor_step, ls, batch, hp)[1])),
                 learner_state,
             )

@@ -54,6 +54,17 @@ def test_afp_replacement_mask():
     np.testing.assert_allclose(a_hat, A_HAT_AFP, atol=1e-6)
 
 
+def test_afp_replacement_can_be_switched_off():
+    """N_P (advisor_policy_episodes): a traced False gives plain ADDPG targets."""
+    targets = jax.jit(addpg_actor_targets, static_argnums=(0, 5))
+    for allowed, a_hat_expected in ((True, A_HAT_AFP), (False, A_HAT_ADDPG)):
+        a_hat, replaced = targets(
+            quadratic_q, OBS, ACTIONS, ADVISOR, BETA, True, replace_allowed=jnp.asarray(allowed)
+        )
+        assert bool(replaced.any()) == allowed
+        np.testing.assert_allclose(a_hat, a_hat_expected, atol=1e-6)
+
+
 def test_addpg_actor_loss_and_gradient():
     a_hat, _ = addpg_actor_targets(quadratic_q, OBS, ACTIONS, ADVISOR, BETA, True)
     # ||â - a||² per sample: 0.2² + 0.1² = 0.05; 0.02² = 0.0004; 0; 0.9² + 0.6² = 1.17.

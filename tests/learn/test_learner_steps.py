@@ -5,6 +5,8 @@ flax forward pass, ∇_a Q, Eq. 2 with AfP, the TD targets, the losses, the soft
 the first Adam step independently of the code under test.
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -175,6 +177,21 @@ def test_addpg_without_afp_steps_like_ddpg_under_adam(agents, random_batch):
     moved = step_ddpg != 0
     np.testing.assert_array_equal(np.sign(step_addpg[moved]), np.sign(step_ddpg[moved]))
     assert np.median(np.abs(step_addpg - step_ddpg)) < HP.lr_actor * 1e-4
+
+
+def test_afp_stops_after_advisor_policy_episodes(agents, random_batch):
+    # ATD3+AfDP replaces while episode <= N_P and afterwards steps exactly like ATD3 without AfP.
+    atd3 = agents["atd3"]
+    state = atd3.init(jax.random.key(13))
+    batch = random_batch(14, 64)
+    hp = HP.replace(advisor_policy_episodes=np.float32(5))
+    _, during = atd3.actor_step(state, batch, hp, jnp.int32(5))
+    after, after_metrics = atd3.actor_step(state, batch, hp, jnp.int32(6))
+    assert float(during["advisor/replaced"]) > 0 and float(after_metrics["advisor/replaced"]) == 0
+    plain = make_learner(dataclasses.replace(atd3.cfg, advisor_policy=False))
+    expected, _ = jax.jit(plain.actor_step)(state, batch, hp)
+    for a, b in _leaves(after.actor, expected.actor):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_q_select_is_min_over_critics(agents, random_batch, ref):
