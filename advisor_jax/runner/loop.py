@@ -122,7 +122,7 @@ class Controller:
             return CycleResult(STOP, e.reason, str(e))
         except Exception as e:  # never let a surprise reach the motors
             return CycleResult(STOP, "exception", f"{type(e).__name__}: {e}")
-        d, p_min = float(obs[spec.OBS_GOAL_DISTANCE]), float(obs[spec.OBS_PROXIMITY].min())
+        d, p_min = float(obs[spec.OBS_GOAL_DISTANCE]), min(obs[spec.OBS_PROXIMITY].tolist())
         if cfg.goal_tolerance is not None and d <= cfg.goal_tolerance:
             return CycleResult(DONE, "goal_reached", f"d = {d:.3f} m", obs=obs)
         if cfg.collision_distance is not None and p_min <= cfg.collision_distance:

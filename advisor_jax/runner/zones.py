@@ -22,6 +22,8 @@ import numpy as np
 from advisor_jax.runner import spec
 
 assert spec.N_ZONES & (spec.N_ZONES - 1) == 0, "zone_index wraps with a bit mask"
+ZONE_WIDTH_RAD = math.radians(spec.ZONE_WIDTH_DEG)
+ZONE_START_RAD = math.radians(spec.ZONE_START_DEG)
 
 
 def zone_index(angles_rad: Any, xp: Any = np) -> Any:
@@ -30,10 +32,8 @@ def zone_index(angles_rad: Any, xp: Any = np) -> Any:
     The mapping wraps, so +180° and -180° land in the same zone; any finite angle of
     magnitude below ~10^8 rad (where the turn count leaves int32) is accepted.
     """
-    width = math.radians(spec.ZONE_WIDTH_DEG)
-    start = math.radians(spec.ZONE_START_DEG)
     # start - w (k + 1) < a <= start - w k  <=>  k <= (start - a) / w < k + 1.
-    k = xp.floor((start - angles_rad) / width).astype(xp.int32)
+    k = xp.floor((ZONE_START_RAD - angles_rad) / ZONE_WIDTH_RAD).astype(xp.int32)
     return k & (spec.N_ZONES - 1)  # = k mod 16, negative k included (two's complement)
 
 

@@ -158,7 +158,7 @@ def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
     points = np.stack([np.full(n, 15.0), deg, mm], 1)
     kept = valid & (mm > 0)
     np.testing.assert_array_equal(
-        rplidar_zones(points, kept, mount_yaw_deg=yaw, range_offset=offset),
+        rplidar_zones(points, ~kept, mount_yaw_deg=yaw, range_offset=offset),
         zones.reduce_to_zones(angles, ranges, kept, range_offset=offset, xp=_generic_numpy()),
     )
 
@@ -256,11 +256,47 @@ def test_build_layout():
     assert tuple(obs0[18:]) == (0.0, 0.0) and obs1[18:] == pytest.approx([0.0, 0.5])
 
 
+def test_build_matches_generic_reference():
+    """The builder's fast path equals the observation assembled from the documented pieces:
+    the generic zone reduction, the finite-difference velocity and goal_features."""
+    rng = np.random.default_rng(3)
+    cfg = ObservationConfig(range_offset=0.22, mount_yaw_deg=180.0, min_quality=5.0,
+                            min_range=0.15, bounds=BOUNDS)  # fmt: skip
+    b = ObservationBuilder(cfg, (1.5, -0.5))
+    prev = None
+    for step in range(50):
+        deg = np.floor(rng.uniform(0.0, 360.0, 200) * 64) / 64
+        deg[:20] = rng.integers(0, 16, 20) * 22.5  # on zone boundaries
+        mm = np.floor(rng.uniform(0.0, 1500.0, 200) * 4) / 4
+        mm[rng.random(200) < 0.1] = 0.0
+        quality = rng.integers(0, 16, 200).astype(float)
+        points = np.stack([quality, deg, mm], 1)
+        pose = Pose(0.1 * step, -0.02 * step, 0.3, 0.05 * step, 0.0)
+        obs = b.build(Scan(points, 0.0), pose)
+        angles, ranges = scan_to_robot_frame(points, 180.0)
+        keep = (mm > 150.0) & (quality >= 5.0)
+        ref_zones = zones.reduce_to_zones(
+            angles, ranges, keep, range_offset=0.22, xp=_generic_numpy()
+        )
+        np.testing.assert_array_equal(obs[:16], ref_zones.astype(np.float32))
+        delta, d = goal_features(pose.x, pose.y, pose.theta, 1.5, -0.5)
+        v = (0.0, 0.0) if prev is None else ((pose.x - prev.x) / 0.05, (pose.y - prev.y) / 0.05)
+        np.testing.assert_array_equal(obs[16:], np.array([delta, d, *v], np.float32))
+        prev = pose
+
+
 def test_bad_pose_and_goal():
     b = builder()
     with pytest.raises(ObservationError) as e:
         b.build(ring_scan(0.5, 0.0), Pose(np.nan, 0.0, 0.0, 1.0, 0.0))
     assert e.value.reason == "pose_nan"
+    for bad in (np.inf, -np.inf):
+        with pytest.raises(ObservationError) as e:
+            builder().build(ring_scan(0.5, 0.0), Pose(0.0, 0.0, bad, 1.0, 0.0))
+        assert e.value.reason == "pose_nan"
+    # theta + t overflows the fast check's sum, but every value is finite: a valid pose
+    obs = builder().build(ring_scan(0.5, 0.0), Pose(0.0, 0.0, 1e308, 1e308, 0.0))
+    assert np.isfinite(obs).all()
     for goal in ((3.0, 0.0), (0.0, -1.6), (np.nan, 0.0)):
         with pytest.raises(ObservationError) as e:
             ObservationBuilder(ObservationConfig(bounds=BOUNDS), goal)

@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from advisor_jax.runner import spec
 from advisor_jax.runner.errors import PolicyError
 from advisor_jax.runner.policy import config_hash, load_policy
 
@@ -176,4 +177,17 @@ def test_act_validates_observations(policy):
         policy.act(obs)
     out = policy.act(np.zeros((5, 20)))
     assert out.dtype == np.float32 and out.shape == (5, 2)
+    # The fast check (one dot product) catches every non-finite value in every position,
+    # alone or with its opposite, and lets huge finite values (its overflow) through.
+    for i in range(20):
+        for bad in (np.nan, np.inf, -np.inf):
+            obs = np.zeros(20, np.float32)
+            obs[i] = bad
+            with pytest.raises(PolicyError, match=spec.OBS_NAMES[i]):
+                policy.act(obs)
+            with pytest.raises(PolicyError, match=spec.OBS_NAMES[i]):
+                policy.act(np.stack([np.zeros(20, np.float32), obs]))
+    huge = np.full(20, 1e20, np.float32)
+    assert np.isinf(np.vdot(huge, huge))  # the fast check overflows; the slow one lets it go
+    assert np.isfinite(policy.act(huge)).all() and np.isfinite(policy.act(-huge)).all()
     assert ((out[:, 0] >= 0) & (out[:, 0] <= 1) & (np.abs(out[:, 1]) <= 1)).all()
