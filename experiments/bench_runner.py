@@ -168,24 +168,29 @@ def main() -> None:
 
     # A car swinging along x at up to 0.5 m/s, 20 Hz. Made up front: the tracker thread
     # builds each Pose when it arrives, outside the control cycle.
-    n_poses = (args.blocks + 1) * (args.iters + args.warmup) + args.sleep_iters + 20
+    n_poses = max(args.iters + args.warmup, args.sleep_iters + 20)
     poses = [Pose(math.sin(0.05 * i), 0.1, 0.2, 0.05 * i, 0.0) for i in range(n_poses)]
-    pose = poses.__getitem__
 
-    obs0 = ObservationBuilder(cfg, (2.0, 1.0)).build(scans[0], pose(0))
-    # Each case gets its own builder and call counter: every one sees a smoothly moving pose.
+    obs0 = ObservationBuilder(cfg, (2.0, 1.0)).build(scans[0], poses[0])
+    # Each case gets its own builder, reset before every timed run (whose calls count from
+    # 0), so that every one sees a smoothly moving pose.
     builders = [ObservationBuilder(cfg, (2.0, 1.0)) for _ in range(4)]
     beams = [scan_to_robot_frame(s.points) + (s.points[:, 2] > 0,) for s in scans]
     dropped = [~valid for *_, valid in beams]
     generic_np = types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if k[0] != "_"})
 
-    def obs_mlp(b: ObservationBuilder, offset: int = 0):
-        return lambda i: policy.act(b.build(scans[i % 64], poses[i + offset]))
+    def obs_mlp(b: ObservationBuilder):
+        return lambda i: policy.act(b.build(scans[i % 64], poses[i]))
+
+    def run(cases: dict, iters: int, warmup: int, pause: float = 0.0) -> dict:
+        for b in (*builders, controller.builder):
+            b.reset()
+        return timed(cases, iters, warmup, pause)
 
     pieces = {
-        "obs (200-point scan → 20-d)": lambda i: builders[0].build(scans[i % 64], pose(i)),
+        "obs (200-point scan → 20-d)": lambda i: builders[0].build(scans[i % 64], poses[i]),
         "mlp (20→600→300→2)": lambda i: policy.act(obs0),
-        "cycle (watchdog+obs+mlp+drive)": lambda i: controller.cycle(0.0, scans[i % 64], pose(i)),
+        "cycle (watchdog+obs+mlp+drive)": lambda i: controller.cycle(0.0, scans[i % 64], poses[i]),
         "zones only: car path (rplidar_zones)": lambda i: rplidar_zones(
             scans[i % 64].points, dropped[i % 64], range_offset=0.22
         ),
@@ -200,25 +205,17 @@ def main() -> None:
 
     load_before, add_before = os.getloadavg()[0], speed_probe()
     main_name = "obs+mlp, back to back"
-    blocks, offset = [], 0
-    for _ in range(args.blocks):  # a fresh warm-up and counter range per block
-        one = obs_mlp(builders[1], offset)
-        t = timed({main_name: one}, args.iters, args.warmup)[main_name]
-        blocks.append(t)
-        offset += args.iters + args.warmup
+    blocks = [  # a fresh warm-up per block
+        run({main_name: obs_mlp(builders[1])}, args.iters, args.warmup)[main_name]
+        for _ in range(args.blocks)
+    ]
     rows = [stats(main_name + f" ({args.blocks} blocks pooled)", np.concatenate(blocks), blocks)]
     for name, fn in pieces.items():
-        for b in (*builders, controller.builder):
-            b.reset()  # each timed() call starts its counter at 0
-        times = timed({name: fn}, args.iters, args.warmup)[name]
-        rows.append(stats(name + ", back to back", times))
-    for b in (*builders, controller.builder):
-        b.reset()
-    cold = timed({"obs+mlp, interleaved with the rows above": obs_mlp(builders[2]), **pieces},
-                 args.iters, args.warmup)  # fmt: skip
-    rows.append(stats("obs+mlp, interleaved with the rows above", cold["obs+mlp, interleaved "
-                      "with the rows above"]))  # fmt: skip
-    after_sleep = timed({"s": obs_mlp(builders[3])}, args.sleep_iters, 20, pause=0.05)["s"]
+        rows.append(stats(name + ", back to back", run({name: fn}, args.iters, args.warmup)[name]))
+    cold_name = "obs+mlp, interleaved with the rows above"
+    cold = run({cold_name: obs_mlp(builders[2]), **pieces}, args.iters, args.warmup)
+    rows.append(stats(cold_name, cold[cold_name]))
+    after_sleep = run({"s": obs_mlp(builders[3])}, args.sleep_iters, 20, pause=0.05)["s"]
     rows.append(stats("obs+mlp, after a 50 ms sleep each", after_sleep))
     load_after = os.getloadavg()[0]
     add_after = speed_probe()
