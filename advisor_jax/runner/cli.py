@@ -89,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.0,
         metavar="DEG",
-        help="robot-frame direction (CCW deg) of the lidar's 0 mark; 180 if reversed",
+        help="robot-frame direction (CCW deg) of the lidar's 0 mark; 180 if reversed; "
+        "a multiple of 1/64 deg, the RPLIDAR's angle step",
     )
     g.add_argument(
         "--range-offset",

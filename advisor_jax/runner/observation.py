@@ -3,8 +3,8 @@
 Layout, units and frames are those of ``spec.py``. Outline::
 
     scan  (quality, angle° CLOCKWISE, distance mm; 0 mm = invalid)   # RPLIDAR python packages
-        θ_robot = radians(-angle) + mount_yaw;  r = mm / 1000
-        P = zones.reduce_to_zones(θ_robot, r, valid, range_offset=...)   # same as the simulator
+        zone of a reading: robot-frame angle mount_yaw - angle by spec.py's rule (zone_table)
+        P = per-zone min of clip(mm / 1000 - range_offset, 0, max_range); empty zone: max_range
     pose  (x, y, θ, t) from the external tracker, world (arena) frame
         (v_x, v_y) = (p_t - p_prev) / (t - t_prev)      # world frame, finite difference
     goal  (g_x, g_y):  δ = wrap(atan2(g_y - y, g_x - x) - θ) ∈ [-π, π),  d = |g - p|
@@ -15,6 +15,11 @@ consecutive builds, i.e. the displacement over about one control period like the
 (``spec.py``: v = displacement over the last period / dt; 0 at the first step). The same
 pose seen twice (same ``t`` and position, a tracker slower than the loop) keeps the last
 velocity instead of dividing by zero.
+
+The zones are the simulator's (``zones.reduce_to_zones``, which the ``physical`` arena runs on
+its beams): tests/runner checks that both give the same bits on any scan without a reading
+exactly on a zone boundary, where the car follows spec.py's rule exactly and the simulator's
+float radians may round to the neighbouring zone (its beams never lie on one).
 
 Every problem raises ``ObservationError`` with a reason code: ``scan_format``, ``scan_nan``,
 ``scan_empty`` (fewer valid readings than ``min_valid_points``: an empty zone reads max range,
@@ -33,19 +38,27 @@ from typing import Any
 
 import numpy as np
 
-from advisor_jax.runner import spec, zones
+from advisor_jax.runner import spec
 from advisor_jax.runner.errors import ObservationError
 
+TICKS_PER_DEGREE = 64
+"""RPLIDAR angles come in 1/64° steps (the ``rplidar`` package: ``raw_angle / 64``)."""
+TICKS_PER_TURN = 360 * TICKS_PER_DEGREE
+_ZONE_START_TICKS = round(spec.ZONE_START_DEG * TICKS_PER_DEGREE)
+_ZONE_WIDTH_TICKS = round(spec.ZONE_WIDTH_DEG * TICKS_PER_DEGREE)
+assert _ZONE_START_TICKS == spec.ZONE_START_DEG * TICKS_PER_DEGREE, "zone start off the tick grid"
+assert _ZONE_WIDTH_TICKS * spec.N_ZONES == TICKS_PER_TURN, "zone width off the tick grid"
+_SCAN_NORM_LIMIT = 1e12
+"""A scan whose values have a larger Euclidean norm is refused (scan_format): they are not
+degrees and mm (a turn's norm is ~10^5), and angles stay far from int64 1/64° ticks' limit."""
+
+
 # Bound once: the per-cycle code below calls them directly (bench_runner.py's budget).
-_add_reduce, _min_reduce = np.add.reduce, np.minimum.reduce
-_subtract, _multiply, _divide = np.subtract, np.multiply, np.divide
-_minimum, _maximum, _radians, _floor = np.minimum, np.maximum, np.radians, np.floor
-_bitwise_and, _less, _less_equal = np.bitwise_and, np.less, np.less_equal
-_putmask, _count_nonzero = np.putmask, np.count_nonzero
-# 0-d arrays: a ufunc takes them without converting a Python number on every call; same values
-_ZONE_START, _ZONE_WIDTH = np.full((), zones.ZONE_START_RAD), np.full((), zones.ZONE_WIDTH_RAD)
-_ZONE_MASK = np.full((), spec.N_ZONES - 1, dtype=np.int32)  # as zones.zone_index
-_MM, _ZERO = np.full((), 1e-3), np.full((), 0.0)  # mm → m as scan_to_robot_frame; clip at 0
+_vdot, _multiply, _floor = np.vdot, np.multiply, np.floor
+_less, _less_equal = np.less, np.less_equal
+_putmask, _count_nonzero, _minimum_at = np.putmask, np.count_nonzero, np.minimum.at
+_TICKS = np.full((), float(TICKS_PER_DEGREE))  # 0-d: no Python-number conversion per call
+_EMPTY_ZONES = np.full(spec.N_ZONES + 1, np.inf)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,7 +94,7 @@ class ObservationConfig:
     """Subtracted from every lidar range (m): lidar origin to body edge; from policy.json."""
     mount_yaw_deg: float = 0.0
     """Robot-frame direction (deg, CCW) of the lidar's 0° mark; 180 for a lidar mounted
-    back to front."""
+    back to front. A multiple of 1/64° (the RPLIDAR's angle step; ``zone_table``)."""
     min_quality: float = 0.0
     """Readings with a lower RPLIDAR quality are dropped."""
     min_range: float = 0.0
@@ -102,6 +115,7 @@ class ObservationConfig:
         for name in ("range_offset", "mount_yaw_deg", "min_quality", "min_range"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"ObservationConfig.{name} must be finite")
+        mount_yaw_ticks(self.mount_yaw_deg)  # zone_table's exactness needs the 1/64° grid
         for name in ("range_offset", "min_range"):
             if getattr(self, name) < 0:
                 raise ValueError(f"ObservationConfig.{name}={getattr(self, name)} must be >= 0")
@@ -133,6 +147,65 @@ def scan_to_robot_frame(
     return angles, points[:, 2] * 1e-3
 
 
+def mount_yaw_ticks(mount_yaw_deg: float) -> int:
+    """The lidar mount's yaw in 1/64° ticks; ValueError unless it lies on that grid."""
+    ticks = float(mount_yaw_deg) * TICKS_PER_DEGREE  # exact: a power-of-two scaling
+    if not (math.isfinite(ticks) and ticks.is_integer()):
+        nearest = round(ticks) / TICKS_PER_DEGREE if math.isfinite(ticks) else 0.0
+        raise ValueError(
+            f"mount_yaw_deg={mount_yaw_deg!r} must be a multiple of 1/64 degree (the RPLIDAR's "
+            f"angle step), e.g. {nearest!r}"
+        )
+    return int(ticks)
+
+
+def zone_table(mount_yaw_deg: float = 0.0) -> np.ndarray:
+    """[23040] zone of each 1/64° tick of a clockwise RPLIDAR angle (``spec.py``'s rule).
+
+    A reading at clockwise angle ``a`` (degrees) points at robot-frame angle ``mount_yaw - a``
+    (CCW), which lies in zone k iff ``22.5 k <= a + 90 - mount_yaw < 22.5 (k + 1)`` (mod 360;
+    ``spec.zone_bounds_deg``). With ``mount_yaw`` on the 1/64° grid every zone boundary is a
+    tick, so the zone of any ``a`` is the zone of its tick ``floor(64 a) mod 23040``: this
+    table, computed in integers, is the rule exactly, for every float ``a`` (exact boundaries
+    included; the float radians of ``zones.zone_index`` round there, e.g. 157.5° clockwise
+    lands in zone 10 instead of 11, and the simulator's beams avoid boundaries for that
+    reason; tests/runner checks both agree everywhere else).
+    """
+    yaw_ticks = mount_yaw_ticks(mount_yaw_deg)
+    ticks = np.arange(TICKS_PER_TURN, dtype=np.int64) + (_ZONE_START_TICKS - yaw_ticks)
+    return (ticks // _ZONE_WIDTH_TICKS % spec.N_ZONES).astype(np.intp)
+
+
+def zone_minima_mm(points: np.ndarray, dropped: np.ndarray, table: np.ndarray) -> list[float]:
+    """Per-zone minimum raw distance (mm; inf for an empty zone) of a checked RPLIDAR scan.
+
+    Returns 17 values: the 16 zones, then a 17th slot that collects the ``dropped`` readings
+    (so its minimum is negative exactly when a dropped reading had a negative distance).
+    ``points`` must be finite with |values| <= 1e12 (``ObservationBuilder`` checks it).
+    Written for the control cycle's latency budget (``bench_runner.py``), where numpy's
+    per-call overhead dominates: eight numpy calls for the whole scan.
+    """
+    index = _multiply(points[:, 1], _TICKS)
+    _floor(index, out=index)
+    index = table.take(index.astype(np.intp), mode="wrap")  # tick mod 23040 → zone
+    _putmask(index, dropped, spec.N_ZONES)
+    mm = _EMPTY_ZONES.copy()
+    _minimum_at(mm, index, points[:, 2])
+    return mm.tolist()
+
+
+def free_distances(minima_mm: list[float], max_range: float, range_offset: float) -> list[float]:
+    """The 16 zone values of ``zone_minima_mm``: ``clip(mm * 1e-3 - offset, 0, max_range)``,
+    the generic path's ``clip(range_m - offset, 0, max_range)`` of ``range_m = mm * 1e-3`` in
+    the same float64 operations. Each step is non-decreasing in ``mm``, so taking the
+    minimum over raw millimetres first gives the same bits; an empty zone (inf) reads
+    ``max_range``."""
+    return [
+        0.0 if (v := mm * 1e-3 - range_offset) <= 0.0 else (v if v < max_range else max_range)
+        for mm in minima_mm[: spec.N_ZONES]
+    ]
+
+
 def rplidar_zones(
     points: np.ndarray,
     dropped: np.ndarray,
@@ -141,40 +214,15 @@ def rplidar_zones(
     max_range: float = spec.MAX_RANGE,
     range_offset: float = 0.0,
 ) -> np.ndarray:
-    """[16] zone distances of a checked RPLIDAR scan: the car's per-cycle reduction.
+    """[16] float64 zone distances of a checked RPLIDAR scan (``dropped`` [n] bool marks the
+    readings to leave out): what ``ObservationBuilder`` computes each cycle, as one call.
 
-    ``dropped`` [n] bool marks the readings to leave out. Equals
-    ``zones.reduce_to_zones(*scan_to_robot_frame(points, mount_yaw_deg), ~dropped, ...)``
-    bit for bit (tests/runner checks it) for a scan whose readings are finite, with every
-    distance <= 0 dropped, which is what ``ObservationBuilder.zones`` has checked by then.
-    It is written for the control cycle's latency budget (``bench_runner.py``), where
-    numpy's per-call overhead dominates, so it makes as few and as cheap calls as it can:
-
-    * the zone of each reading is ``zones.zone_index(radians(mount_yaw - angle))``, the same
-      floating-point operations in the same order, done in place in one buffer; dropped
-      readings go to a 17th, discarded zone;
-    * the minimum is taken over the raw millimetres and only the 16 minima are converted to
-      free distance. The conversion ``f(mm) = min(max(mm * 1e-3 - offset, 0), max_range)`` is
-      non-decreasing in floating point too (every step is a correctly rounded monotone
-      operation), so ``f(min mm) == min f(mm)`` exactly; an empty zone is ``f(inf) ==
-      max_range``, as in the generic path.
+    Equals ``zones.reduce_to_zones(*scan_to_robot_frame(points, mount_yaw_deg), ~dropped,
+    ...)`` bit for bit wherever no kept reading lies exactly on a zone boundary, and follows
+    ``spec.py``'s rule exactly there too (``zone_table``).
     """
-    k = _subtract(mount_yaw_deg, points[:, 1])  # as scan_to_robot_frame, then zone_index
-    _radians(k, out=k)
-    _subtract(_ZONE_START, k, out=k)
-    _divide(k, _ZONE_WIDTH, out=k)
-    _floor(k, out=k)
-    index = k.astype(np.int32)
-    _bitwise_and(index, _ZONE_MASK, out=index)
-    _putmask(index, dropped, spec.N_ZONES)
-    mm = np.full(spec.N_ZONES + 1, np.inf)
-    _minimum.at(mm, index, points[:, 2])
-    mm = mm[: spec.N_ZONES]
-    _multiply(mm, _MM, out=mm)  # f(mm) on the 16 minima
-    _subtract(mm, range_offset, out=mm)
-    _maximum(mm, _ZERO, out=mm)
-    _minimum(mm, max_range, out=mm)
-    return mm
+    minima = zone_minima_mm(points, dropped, zone_table(mount_yaw_deg))
+    return np.array(free_distances(minima, max_range, range_offset))
 
 
 def goal_features(x: float, y: float, theta: float, gx: float, gy: float) -> tuple[float, float]:
@@ -214,12 +262,8 @@ class ObservationBuilder:
         check_goal(goal, config.bounds)
         self.config = config
         self.goal = (float(goal[0]), float(goal[1]))
-        # The per-cycle constants as 0-d float64 arrays (cheaper ufunc arguments, same values)
-        self._yaw, self._max_range, self._offset, self._min_mm = (
-            np.full((), float(v))
-            for v in (config.mount_yaw_deg, config.max_range, config.range_offset,
-                      config.min_range * 1e3)
-        )  # fmt: skip
+        self._table = zone_table(config.mount_yaw_deg)  # raises on an off-grid yaw
+        self._min_mm = np.full((), config.min_range * 1e3)  # 0-d: cheaper ufunc argument
         self.reset()
 
     def reset(self) -> None:
@@ -229,38 +273,36 @@ class ObservationBuilder:
 
     def zones(self, scan: Scan) -> np.ndarray:
         """[16] float32 proximity zones of a scan; raises ObservationError if unusable."""
-        return self._zones(scan).astype(np.float32)
+        return np.array(self._zones(scan), dtype=np.float32)
 
-    def _zones(self, scan: Scan) -> np.ndarray:
-        """``zones`` in float64, before the observation's cast to float32."""
+    def _zones(self, scan: Scan) -> list[float]:
+        """``zones`` as 16 Python floats (float64), before the observation's cast to float32."""
         cfg, points = self.config, scan.points
         if not (type(points) is np.ndarray and points.dtype == np.float64):
             points = scan_points(points)  # lists of tuples, ints, objects: convert or refuse
         if points.ndim != 2 or points.shape[1] != 3:
             points = scan_points(points)  # raises scan_format
-        if not math.isfinite(_add_reduce(points, None)):  # one reduction: NaN and inf propagate
-            if np.isfinite(points).all():
-                raise ObservationError("scan_format", "scan values overflow (not mm, degrees)")
-            raise ObservationError("scan_nan", "scan contains NaN or inf values")
+        # One sum of squares finds NaN, inf and absurd values alike (no term can cancel).
+        if not _vdot(points, points) <= _SCAN_NORM_LIMIT**2:
+            if not np.isfinite(points).all():
+                raise ObservationError("scan_nan", "scan contains NaN or inf values")
+            raise ObservationError(
+                "scan_format", "scan values are implausibly large (not degrees and mm)"
+            )
         dist = points[:, 2]
-        if len(dist) and _min_reduce(dist) < 0:
-            raise ObservationError("scan_format", "scan has negative distances")
-        dropped = _less_equal(dist, self._min_mm)  # always drops the 0 mm "invalid" marks
+        dropped = _less_equal(dist, self._min_mm)  # always drops 0 mm ("invalid") and below
         if cfg.min_quality > 0:
             dropped |= _less(points[:, 0], cfg.min_quality)
+        minima = zone_minima_mm(points, dropped, self._table)
+        if minima[spec.N_ZONES] < 0:  # the dropped readings' slot
+            raise ObservationError("scan_format", "scan has negative distances")
         n_valid = len(dist) - _count_nonzero(dropped)
         if n_valid < cfg.min_valid_points:
             raise ObservationError(
                 "scan_empty",
                 f"scan has {n_valid} valid readings of {len(points)} (need {cfg.min_valid_points})",
             )
-        return rplidar_zones(
-            points,
-            dropped,
-            mount_yaw_deg=self._yaw,
-            max_range=self._max_range,
-            range_offset=self._offset,
-        )
+        return free_distances(minima, cfg.max_range, cfg.range_offset)
 
     def velocity(self, pose: Pose) -> tuple[float, float]:
         """World-frame (v_x, v_y) by finite difference; updates the reference pose."""
@@ -294,14 +336,13 @@ class ObservationBuilder:
 
     def build(self, scan: Scan, pose: Pose) -> np.ndarray:
         """[20] float32 observation (``spec.py`` layout)."""
-        obs = np.empty(spec.OBS_SIZE, dtype=np.float32)
-        obs[spec.OBS_PROXIMITY] = self._zones(scan)  # the cast of ``zones``
+        values = self._zones(scan)
         x, y, theta, t = pose.x, pose.y, pose.theta, pose.t
-        values = (x, y, theta, t)
-        if not math.isfinite(x + y + theta + t) and not all(map(math.isfinite, values)):
-            raise ObservationError("pose_nan", f"pose (x, y, theta, t) = {values} is not finite")
-        obs[18], obs[19] = self.velocity(pose)
-        obs[spec.OBS_GOAL_ANGLE], obs[spec.OBS_GOAL_DISTANCE] = goal_features(
-            x, y, theta, *self.goal
-        )
-        return obs
+        if not math.isfinite(x + y + theta + t) and not all(map(math.isfinite, (x, y, theta, t))):
+            raise ObservationError(
+                "pose_nan", f"pose (x, y, theta, t) = {(x, y, theta, t)} is not finite"
+            )
+        vx, vy = self.velocity(pose)
+        delta, d = goal_features(x, y, theta, *self.goal)
+        values += (delta, d, vx, vy)
+        return np.array(values, dtype=np.float32)

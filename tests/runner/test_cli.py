@@ -33,6 +33,7 @@ def _error_line(capsys) -> str:
         (["{dir}", "--goal", "0", "0", *DRIVE, "--pose-udp", "5005"], "HOST:PORT"),
         (["{dir}", "--goal", "0", "0", *DRIVE], "no motor driver"),
         (["{dir}", "--goal", "5", "0", *DRIVE, "--dry-run"], "outside the arena bounds"),
+        (["{dir}", "--goal", "0", "0", *DRIVE, "--lidar-yaw", "2.3"], "multiple of 1/64 degree"),
         (["{dir}/nope", "--goal", "0", "0", *DRIVE, "--dry-run"], "not a directory"),
         (["--replay", "{dir}/missing.jsonl"], "cannot read log"),
     ],

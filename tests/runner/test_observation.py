@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import types
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from advisor_jax.runner.observation import (
     goal_features,
     rplidar_zones,
     scan_to_robot_frame,
+    zone_table,
 )
 
 BOUNDS = (-2.45, 2.45, -1.5, 1.5)
@@ -125,8 +127,8 @@ def _generic_numpy():
     offset=st.sampled_from([0.0, 0.22]),
 )
 def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
-    """The car's scatter-minimum equals the simulator's membership-matrix path exactly,
-    including readings exactly on zone boundaries and at ±180°."""
+    """``reduce_to_zones``' numpy scatter-minimum equals its membership-matrix path (the
+    simulator's) exactly, including readings exactly on zone boundaries and at ±180°."""
     rng = np.random.default_rng(seed)
     deg = rng.uniform(-400.0, 400.0, n)
     deg[: n // 3] = rng.integers(-32, 32, n // 3) * 22.5  # exact boundaries
@@ -154,13 +156,85 @@ def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
     np.testing.assert_array_equal(
         zones.reduce_to_zones(angles, ranges, valid, range_offset=offset), ref
     )
-    # and the car's per-cycle reduction straight from RPLIDAR points
+
+
+def rule_zone(cw_deg: float, mount_yaw_deg: float) -> int:
+    """spec.py's zone rule in exact rational arithmetic: zone k holds robot-frame angles a
+    with start - w (k + 1) < a <= start - w k (mod 360), a = mount_yaw - clockwise angle."""
+    ccw = Fraction(mount_yaw_deg) - Fraction(cw_deg)
+    start, width = Fraction(spec.ZONE_START_DEG), Fraction(spec.ZONE_WIDTH_DEG)
+    return math.floor((start - ccw) / width) % spec.N_ZONES
+
+
+def rule_zones(points, kept, mount_yaw_deg, offset, max_range=1.0) -> np.ndarray:
+    """Zones of RPLIDAR points by a plain loop over the exact rule; free distance in the
+    generic path's float64 operations (mm * 1e-3, minus offset, clipped)."""
+    ref = np.full(16, max_range)
+    for (_, deg, mm), keep in zip(points.tolist(), kept, strict=True):
+        if keep:
+            k = rule_zone(deg, mount_yaw_deg)
+            ref[k] = min(ref[k], min(max(mm * 1e-3 - offset, 0.0), max_range))
+    return ref
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(1, 300),
+    yaw=st.sampled_from([0.0, 180.0, -37.5, 22.5, 1 / 64]),
+    offset=st.sampled_from([0.0, 0.22]),
+)
+def test_car_zone_path_follows_the_rule_and_matches_the_simulator(seed, n, yaw, offset):
+    """The car's reduction equals the exact rule everywhere (exact boundaries, ±180°, angles
+    beyond [0, 360), off the 1/64° grid), and the simulator's float path on every scan that
+    has no reading exactly on a zone boundary."""
+    rng = np.random.default_rng(seed)
+    deg = rng.uniform(-400.0, 400.0, n)  # off any boundary (a double hits one with p ~ 0)
+    grid = rng.random(n) < 0.5
+    deg[grid] = np.floor(deg[grid] * 64) / 64  # the RPLIDAR's 1/64° steps
+    on_boundary = rng.random(n) < 0.2
+    deg[on_boundary] = rng.integers(-32, 32, on_boundary.sum()) * 22.5 + (yaw - 90.0) % 22.5
+    mm = np.floor(rng.uniform(0.0, 1500.0, n) * 4) / 4
+    mm[rng.random(n) < 0.2] = 0.0
     points = np.stack([np.full(n, 15.0), deg, mm], 1)
-    kept = valid & (mm > 0)
+    kept = (rng.random(n) < 0.9) & (mm > 0)
+    car = rplidar_zones(points, ~kept, mount_yaw_deg=yaw, range_offset=offset)
+    np.testing.assert_array_equal(car, rule_zones(points, kept, yaw, offset))
+    away = kept & ~on_boundary
+    angles, ranges = scan_to_robot_frame(points, yaw)
     np.testing.assert_array_equal(
-        rplidar_zones(points, ~kept, mount_yaw_deg=yaw, range_offset=offset),
-        zones.reduce_to_zones(angles, ranges, kept, range_offset=offset, xp=_generic_numpy()),
+        rplidar_zones(points, ~away, mount_yaw_deg=yaw, range_offset=offset),
+        zones.reduce_to_zones(angles, ranges, away, range_offset=offset, xp=_generic_numpy()),
     )
+
+
+@pytest.mark.parametrize("yaw", [0.0, 180.0, -90.0, -37.5, 1 / 64])
+def test_zone_table(yaw):
+    """Every 1/64° tick's zone is the simulator's ``zone_index`` at the tick's middle, and
+    ticks at and around each boundary follow the exact rule."""
+    table = zone_table(yaw)
+    ticks = np.arange(len(table))
+    mid_angles, _ = scan_to_robot_frame(np.stack([ticks * 0.0, (ticks + 0.5) / 64, ticks], 1), yaw)
+    np.testing.assert_array_equal(table, zones.zone_index(mid_angles))
+    start = round((spec.ZONE_START_DEG - yaw) * 64)
+    for boundary in range((-start) % 1440, len(table), 1440):
+        for n in (boundary - 1, boundary, boundary + 1):
+            assert table[n % len(table)] == rule_zone(n / 64, yaw), n
+
+
+def test_exact_boundaries_differ_from_float_radians():
+    """Why the car does not use zone_index's float radians: 157.5° clockwise is -157.5° CCW,
+    the top of zone 11 (-180°, -157.5°]; in radians it rounds to zone 10."""
+    assert rule_zone(157.5, 0.0) == 11
+    assert zone_table(0.0)[157 * 64 + 32] == 11
+    assert zone_of(one_point(157.5)) == [11]
+    assert int(zones.zone_index(np.radians(np.array([-157.5])))[0]) == 10
+
+
+def test_mount_yaw_on_the_rplidar_grid():
+    ObservationConfig(mount_yaw_deg=2.296875)  # 147 / 64
+    with pytest.raises(ValueError, match=r"multiple of 1/64 degree .* e\.g\. 2\.296875"):
+        ObservationConfig(mount_yaw_deg=2.3)
 
 
 @pytest.mark.parametrize(
@@ -173,6 +247,8 @@ def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
         ([("a", "b", "c")], "scan_format"),
         (np.array([[15.0, 10.0, -5.0]]), "scan_format"),
         (np.array([[15.0, 1e308, 1e308]] * 3), "scan_format"),
+        (np.array([[15.0, 1e13, 500.0]] * 3), "scan_format"),
+        (np.array([[15.0, 10.0, 500.0]] * 30 + [[15.0, 20.0, -1.0]]), "scan_format"),
         (np.array([[0.0, 10.0, 0.0]] * 10), "scan_empty"),
     ],
 )
@@ -256,9 +332,9 @@ def test_build_layout():
     assert tuple(obs0[18:]) == (0.0, 0.0) and obs1[18:] == pytest.approx([0.0, 0.5])
 
 
-def test_build_matches_generic_reference():
+def test_build_matches_reference():
     """The builder's fast path equals the observation assembled from the documented pieces:
-    the generic zone reduction, the finite-difference velocity and goal_features."""
+    the exact zone rule, the finite-difference velocity and goal_features."""
     rng = np.random.default_rng(3)
     cfg = ObservationConfig(range_offset=0.22, mount_yaw_deg=180.0, min_quality=5.0,
                             min_range=0.15, bounds=BOUNDS)  # fmt: skip
@@ -273,11 +349,8 @@ def test_build_matches_generic_reference():
         points = np.stack([quality, deg, mm], 1)
         pose = Pose(0.1 * step, -0.02 * step, 0.3, 0.05 * step, 0.0)
         obs = b.build(Scan(points, 0.0), pose)
-        angles, ranges = scan_to_robot_frame(points, 180.0)
         keep = (mm > 150.0) & (quality >= 5.0)
-        ref_zones = zones.reduce_to_zones(
-            angles, ranges, keep, range_offset=0.22, xp=_generic_numpy()
-        )
+        ref_zones = rule_zones(points, keep, 180.0, 0.22)
         np.testing.assert_array_equal(obs[:16], ref_zones.astype(np.float32))
         delta, d = goal_features(pose.x, pose.y, pose.theta, 1.5, -0.5)
         v = (0.0, 0.0) if prev is None else ((pose.x - prev.x) / 0.05, (pose.y - prev.y) / 0.05)
