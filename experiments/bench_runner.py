@@ -52,24 +52,12 @@ from advisor_jax.runner.policy import load_policy  # noqa: E402
 from advisor_jax.runner.zones import reduce_to_zones  # noqa: E402
 
 DATE = "2026-11-22"
-ENV_META = {
-    "arena": "physical",
-    "dt": 0.05,
-    "v_max": 1.0,
-    "omega_max": 1.0,
-    "max_range": 1.0,
-    "robot_radius": 0.22,
-    "lidar_range_offset": 0.22,
-    "h_max": 150,
-    "T_g": 0.15,
-    "T_c": 0.1,
-    "bounds": [-2.45, 2.45, -1.5, 1.5],
-}
 
 
 def export_paper_actor(out_dir: str) -> None:
     import jax
 
+    import envs
     from advisor_jax.export import export_policy
     from advisor_jax.networks import Actor, init_actor
 
@@ -81,7 +69,7 @@ def export_paper_actor(out_dir: str) -> None:
         params,
         out_dir,
         actor_hidden=hidden,
-        env_meta=ENV_META,
+        env_meta=envs.make_env("physical").metadata(),  # the arena the car's policy trains in
         config_meta={"preset": "paper", "agent": "ATD3+AfDP"},
         golden_obs=golden,
     )

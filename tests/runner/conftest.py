@@ -9,9 +9,8 @@ import shutil
 import jax
 import numpy as np
 import pytest
-from runner_fakes import CONFIG_META, ENV_META, HIDDEN, asymmetric_actor_params, rollout_like_obs
+from runner_fakes import HIDDEN, asymmetric_actor_params, export_test_actor
 
-from advisor_jax.export import export_policy
 from advisor_jax.networks import Actor
 from advisor_jax.runner.policy import load_policy
 
@@ -36,14 +35,7 @@ def jax_actor():
 @pytest.fixture(scope="session")
 def export_dir(tmp_path_factory, actor_params):
     out = tmp_path_factory.mktemp("export")
-    export_policy(
-        actor_params,
-        out,
-        actor_hidden=HIDDEN,
-        env_meta=ENV_META,
-        config_meta=CONFIG_META,
-        golden_obs=rollout_like_obs(40),
-    )
+    export_test_actor(actor_params, out)
     return out
 
 

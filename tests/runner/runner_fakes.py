@@ -13,6 +13,7 @@ import math
 import jax
 import numpy as np
 
+from advisor_jax.export import export_policy
 from advisor_jax.networks import Actor, init_actor
 from advisor_jax.runner.observation import Pose, Scan
 
@@ -45,6 +46,18 @@ def asymmetric_actor_params(hidden=HIDDEN, seed: int = 0):
         return jax.tree_util.tree_unflatten(tree, noisy)
 
     return jax.jit(make)(jax.random.key(seed))  # one compile instead of one per op
+
+
+def export_test_actor(params, out, **overrides) -> dict:
+    """``export_policy`` with this module's actor size and metadata and 40 rollout-like golden
+    rows, each replaceable by a keyword; returns the metadata."""
+    kw = dict(
+        actor_hidden=HIDDEN,
+        env_meta=ENV_META,
+        config_meta=CONFIG_META,
+        golden_obs=rollout_like_obs(40),
+    )
+    return export_policy(params, out, **{**kw, **overrides})
 
 
 def rollout_like_obs(n: int, seed: int = 0) -> np.ndarray:

@@ -11,9 +11,9 @@ import sys
 import jax
 import numpy as np
 import pytest
-from runner_fakes import CONFIG_META, ENV_META, HIDDEN, rollout_like_obs
+from runner_fakes import CONFIG_META, ENV_META, export_test_actor, rollout_like_obs
 
-from advisor_jax.export import ExportError, edge_case_observations, export_policy
+from advisor_jax.export import ExportError, edge_case_observations
 from advisor_jax.runner import spec
 from advisor_jax.runner.policy import Layer, config_hash, load_policy, mlp_forward
 
@@ -97,35 +97,26 @@ def test_transposed_square_kernel_is_caught(policy, actor_params, jax_actor):
 
 
 def test_export_rejects_bad_inputs(tmp_path, actor_params):
-    kw = dict(
-        actor_hidden=HIDDEN,
-        env_meta=ENV_META,
-        config_meta=CONFIG_META,
-        golden_obs=np.zeros((4, 20)),
-    )
+    out = tmp_path / "a"
     with pytest.raises(ExportError, match="expected"):
-        export_policy(actor_params, tmp_path / "a", **{**kw, "actor_hidden": (48, 32)})
+        export_test_actor(actor_params, out, actor_hidden=(48, 32))
     with pytest.raises(ExportError, match="layers"):
-        export_policy(actor_params, tmp_path / "a", **{**kw, "actor_hidden": (48,)})
+        export_test_actor(actor_params, out, actor_hidden=(48,))
     with pytest.raises(ExportError, match=r"golden_obs must have shape \[N, 20\]"):
-        export_policy(actor_params, tmp_path / "a", **{**kw, "golden_obs": np.zeros((4, 19))})
+        export_test_actor(actor_params, out, golden_obs=np.zeros((4, 19)))
     with pytest.raises(ExportError, match="NaN"):
-        export_policy(
-            actor_params, tmp_path / "a", **{**kw, "golden_obs": np.full((2, 20), np.nan)}
-        )
+        export_test_actor(actor_params, out, golden_obs=np.full((2, 20), np.nan))
     with pytest.raises(ExportError, match="omega_max"):
         env = {k: v for k, v in ENV_META.items() if k != "omega_max"}
-        export_policy(actor_params, tmp_path / "a", **{**kw, "env_meta": env})
+        export_test_actor(actor_params, out, env_meta=env)
     with pytest.raises(ExportError, match="bounds"):
-        export_policy(
-            actor_params, tmp_path / "a", **{**kw, "env_meta": {**ENV_META, "bounds": [1, 0, 0, 1]}}
-        )
+        export_test_actor(actor_params, out, env_meta={**ENV_META, "bounds": [1, 0, 0, 1]})
     with pytest.raises(ExportError, match="config_meta.bad"):
-        export_policy(actor_params, tmp_path / "a", **{**kw, "config_meta": {"bad": object()}})
+        export_test_actor(actor_params, out, config_meta={"bad": object()})
     bad = jax.tree_util.tree_map(np.array, actor_params)  # a writable copy
     bad["params"]["head"]["bias"][0] = np.nan
     with pytest.raises(ExportError, match="head.*NaN"):
-        export_policy(bad, tmp_path / "a", **kw)
+        export_test_actor(bad, out, golden_obs=np.zeros((4, 20)))
     assert not (tmp_path / "a" / "policy.json").exists()
 
 
@@ -135,13 +126,8 @@ def test_metadata_is_strict_json(tmp_path, actor_params):
         "widths": (600, 300),
         "seed": np.int64(3),
     }
-    meta = export_policy(
-        actor_params,
-        tmp_path,
-        actor_hidden=HIDDEN,
-        env_meta=ENV_META,
-        config_meta=config,
-        golden_obs=np.zeros((0, 20)),
+    meta = export_test_actor(
+        actor_params, tmp_path, config_meta=config, golden_obs=np.zeros((0, 20))
     )
     assert meta["config"] == {
         "hparams": {"advisor_episodes": "inf", "lr": 1e-4},
@@ -155,15 +141,7 @@ def test_metadata_is_strict_json(tmp_path, actor_params):
 def test_onnx_parity(tmp_path, actor_params, policy):
     onnx = pytest.importorskip("onnx")
     ort = pytest.importorskip("onnxruntime")
-    meta = export_policy(
-        actor_params,
-        tmp_path,
-        actor_hidden=HIDDEN,
-        env_meta=ENV_META,
-        config_meta=CONFIG_META,
-        golden_obs=rollout_like_obs(40),
-        onnx=True,
-    )
+    meta = export_test_actor(actor_params, tmp_path, onnx=True)
     model = onnx.load(str(tmp_path / "policy.onnx"))
     assert max(o.version for o in model.opset_import if o.domain in ("", "ai.onnx")) <= 13
     assert model.ir_version <= 7
@@ -181,14 +159,7 @@ def test_onnx_parity(tmp_path, actor_params, policy):
     assert np.abs(got - actions).max() <= 1e-5
     assert np.abs(got - policy.act(obs)).max() <= 1e-5
     # Re-exporting without ONNX removes the now stale model.
-    export_policy(
-        actor_params,
-        tmp_path,
-        actor_hidden=HIDDEN,
-        env_meta=ENV_META,
-        config_meta=CONFIG_META,
-        golden_obs=np.zeros((0, 20)),
-    )
+    export_test_actor(actor_params, tmp_path, golden_obs=np.zeros((0, 20)))
     assert not (tmp_path / "policy.onnx").exists()
     load_policy(tmp_path)
 
@@ -196,13 +167,5 @@ def test_onnx_parity(tmp_path, actor_params, policy):
 def test_onnx_missing_is_a_clear_error(tmp_path, actor_params, monkeypatch):
     monkeypatch.setitem(sys.modules, "onnx", None)  # makes `import onnx` fail
     with pytest.raises(ExportError, match=r"onnx=True needs .*pip install"):
-        export_policy(
-            actor_params,
-            tmp_path,
-            actor_hidden=HIDDEN,
-            env_meta=ENV_META,
-            config_meta=CONFIG_META,
-            golden_obs=np.zeros((0, 20)),
-            onnx=True,
-        )
+        export_test_actor(actor_params, tmp_path, golden_obs=np.zeros((0, 20)), onnx=True)
     assert not (tmp_path / "policy.json").exists()
