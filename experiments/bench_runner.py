@@ -9,13 +9,18 @@ Measures, per call, after a warm-up (time.perf_counter_ns around each call):
   watchdog + obs + mlp + Ackermann conversion), and the two zone reductions;
 * ``obs+mlp`` with cold caches, two ways: interleaved call by call with the other rows
   (each finds the actor's weights partly evicted), and after a 50 ms sleep (the car loop's
-  idle time between cycles; on a shared VM the vCPU's caches are then someone else's).
+  idle time between cycles; on a shared VM the vCPU's caches are then someone else's),
+  the latter also with ``Controller.warm`` between the sleep and the timed call, as
+  ``run_loop`` does it (``LoopConfig.warm_up``);
+* ``run_loop`` itself at 20 Hz on in-memory sources, with and without the warm-up: the
+  ``compute_ms`` it logs per cycle (sources → watchdog, observation, MLP, drive → motor).
 
 The policy is a freshly initialised paper-size actor exported with ``advisor_jax.export``
 in a child process (so this script needs JAX, but the timed process never imports it).
 Writes a markdown table.
 
-    python experiments/bench_runner.py [--iters 4000] [--blocks 5] [--out results/bench_runner.md]
+    python experiments/bench_runner.py [--iters 4000] [--blocks 5] [--loop-cycles 400] \
+        [--out results/bench_runner.md]
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as advisor-jax-car sets it, before numpy
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import subprocess  # noqa: E402
@@ -36,8 +42,9 @@ import types  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from advisor_jax.runner.cyclelog import JsonlLog  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive  # noqa: E402
-from advisor_jax.runner.loop import Controller, LoopConfig  # noqa: E402
+from advisor_jax.runner.loop import Controller, LoopConfig, run_loop  # noqa: E402
 from advisor_jax.runner.observation import (  # noqa: E402
     ObservationBuilder,
     ObservationConfig,
@@ -85,9 +92,12 @@ def synthetic_scan(rng: np.random.Generator, stamp: float) -> Scan:
     return Scan(np.stack([quality, angles, dist], axis=1), stamp)
 
 
-def timed(cases: dict, iters: int, warmup: int, pause: float = 0.0) -> dict[str, np.ndarray]:
+def timed(
+    cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None
+) -> dict[str, np.ndarray]:
     """Per-call wall-clock times in µs of every case, the cases interleaved call by call.
-    ``pause`` (s): sleep before each round, as the control loop sleeps between cycles."""
+    ``pause`` (s): sleep before each round, as the control loop sleeps between cycles;
+    ``before(i)``: untimed call after the sleep (the loop's warm-up)."""
     for i in range(warmup):
         for fn in cases.values():
             fn(i)
@@ -96,11 +106,52 @@ def timed(cases: dict, iters: int, warmup: int, pause: float = 0.0) -> dict[str,
     for i in range(iters):
         if pause:
             sleep(pause)
+        if before is not None:
+            before(warmup + i)
         for name, fn in cases.items():
             t0 = wall_ns()
             fn(warmup + i)
             times[name][i] = (wall_ns() - t0) / 1e3
     return times
+
+
+class _Cycling:
+    """In-memory source: ``latest()`` hands out the next item of a list, round robin."""
+
+    def __init__(self, items: list):
+        self.items, self.calls = items, 0
+
+    def latest(self):
+        self.calls += 1
+        return self.items[(self.calls - 1) % len(self.items)]
+
+    def close(self) -> None:
+        pass
+
+
+class _NullMotor:
+    def send(self, command) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def loop_compute_us(controller: Controller, scans: list, poses: list, cycles: int) -> np.ndarray:
+    """``run_loop`` at its configured rate for ``cycles`` cycles with a JSONL log (as the car
+    runs it); returns the per-cycle ``compute_ms`` the log records, in µs."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "loop.jsonl")
+        run_loop(controller, _Cycling(scans), _Cycling(poses), _NullMotor(), log=JsonlLog(path))
+        with open(path, encoding="utf-8") as f:
+            records = [json.loads(line) for line in f]
+    cycles_run = [r for r in records if r["type"] == "cycle"]
+    if len(cycles_run) != cycles or any(r["state"] != "run" for r in cycles_run):
+        raise RuntimeError(f"loop did not drive all {cycles} cycles: {records[-1]}")
+    return np.array([r["compute_ms"] * 1e3 for r in cycles_run])
 
 
 def cpu_name() -> str:
@@ -147,6 +198,7 @@ def main() -> None:
     parser.add_argument("--blocks", type=int, default=5, help="blocks of the obs+mlp row")
     parser.add_argument("--warmup", type=int, default=500)
     parser.add_argument("--sleep-iters", type=int, default=400, help="calls after a 50 ms sleep")
+    parser.add_argument("--loop-cycles", type=int, default=400, help="cycles of each run_loop row")
     parser.add_argument("--out", default="results/bench_runner.md")
     parser.add_argument("--export-only", metavar="DIR", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -170,13 +222,13 @@ def main() -> None:
 
     # A car swinging along x at up to 0.5 m/s, 20 Hz. Made up front: the tracker thread
     # builds each Pose when it arrives, outside the control cycle.
-    n_poses = max(args.iters + args.warmup, args.sleep_iters + 20)
+    n_poses = max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles)
     poses = [Pose(math.sin(0.05 * i), 0.1, 0.2, 0.05 * i, 0.0) for i in range(n_poses)]
 
     obs0 = ObservationBuilder(cfg, (2.0, 1.0)).build(scans[0], poses[0])
     # Each case gets its own builder, reset before every timed run (whose calls count from
     # 0), so that every one sees a smoothly moving pose.
-    builders = [ObservationBuilder(cfg, (2.0, 1.0)) for _ in range(4)]
+    builders = [ObservationBuilder(cfg, (2.0, 1.0)) for _ in range(5)]
     beams = [scan_to_robot_frame(s.points) + (s.points[:, 2] > 0,) for s in scans]
     dropped = [~valid for *_, valid in beams]
     table = zone_table(cfg.mount_yaw_deg)
@@ -185,10 +237,10 @@ def main() -> None:
     def obs_mlp(b: ObservationBuilder):
         return lambda i: policy.act(b.build(scans[i % 64], poses[i]))
 
-    def run(cases: dict, iters: int, warmup: int, pause: float = 0.0) -> dict:
+    def run(cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None) -> dict:
         for b in (*builders, controller.builder):
             b.reset()
-        return timed(cases, iters, warmup, pause)
+        return timed(cases, iters, warmup, pause, before)
 
     pieces = {
         "obs (200-point scan → 20-d)": lambda i: builders[0].build(scans[i % 64], poses[i]),
@@ -220,6 +272,24 @@ def main() -> None:
     rows.append(stats(cold_name, cold[cold_name]))
     after_sleep = run({"s": obs_mlp(builders[3])}, args.sleep_iters, 20, pause=0.05)["s"]
     rows.append(stats("obs+mlp, after a 50 ms sleep each", after_sleep))
+    last_obs = [obs0]
+
+    def obs_mlp_keeping_obs(i):
+        last_obs[0] = builders[4].build(scans[i % 64], poses[i])
+        return policy.act(last_obs[0])
+
+    def warm(i):  # what run_loop does before a cycle: the previous scan and observation
+        controller.warm(scans[(i - 1) % 64], last_obs[0])
+
+    warmed = run({"s": obs_mlp_keeping_obs}, args.sleep_iters, 20, pause=0.05, before=warm)["s"]
+    rows.append(stats("obs+mlp, after a 50 ms sleep and Controller.warm", warmed))
+    for warm_up in (False, True):
+        loop_cfg = LoopConfig(
+            max_scan_age=1e9, max_pose_age=1e9, max_cycles=args.loop_cycles, warm_up=warm_up
+        )
+        car = Controller(policy, ObservationBuilder(cfg, (2.0, 1.0)), controller.drive, loop_cfg)
+        times = loop_compute_us(car, scans, poses, args.loop_cycles)
+        rows.append(stats(f"run_loop at 20 Hz, warm-up {'on' if warm_up else 'off'}", times))
     load_after = os.getloadavg()[0]
     add_after = speed_probe()
 
@@ -247,7 +317,8 @@ def main() -> None:
         f"2000) before/after: {add_before:.2f} / {add_after:.2f} µs.",
         f"Calls: {args.iters} per row and block after {args.warmup} warm-up calls; the first row "
         f"pools {args.blocks} blocks (its last column: the lowest and highest block p99); the "
-        f"sleep row {args.sleep_iters} calls. Garbage collector on.",
+        f"sleep rows {args.sleep_iters} calls, the run_loop rows {args.loop_cycles} cycles each. "
+        "Garbage collector on.",
         "",
         f"Command: `{command}`",
         "",
@@ -272,11 +343,17 @@ def main() -> None:
         "probes above; README: runs of this benchmark on one day), and the rows run one after",
         "another, so they need not add up: `cycle` does all that `obs+mlp` does and more.",
         "",
-        "The two cold rows are not the target's measure but show what the machine does to it.",
+        "The cold rows are not the target's measure but show what the machine does to it.",
         "Interleaved, each call finds the weights and numpy's code partly evicted by the",
-        "other rows. After a 50 ms sleep (the car loop's idle time at 20 Hz) the idle vCPU",
-        "comes back with cold caches (the host ran other work on the core meanwhile), so the",
-        "weights come from memory again; both VMs measured so far show it (README).",
+        "other rows. After a 50 ms sleep (the car loop's idle time at 20 Hz) the first call",
+        "finds the caches cold: the weights and numpy's code come from memory again (both",
+        "VMs measured so far show it; README). `Controller.warm`, which `run_loop` calls",
+        "before each cycle (`LoopConfig.warm_up`, on by default; `--no-warm-up`), runs the",
+        "zone reduction and the actor once on the previous cycle's scan and observation and",
+        "discards the results, so that the cycle from reading the sources to the motor",
+        "command runs warm; the `run_loop` rows time exactly that span (`compute_ms` of the",
+        "loop's own log, which also records `warm_ms`), on in-memory sources and a motor",
+        "that does nothing, with the loop's JSONL log written as on the car.",
         "",
     ]
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)

@@ -81,6 +81,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--rate", type=float, help="control rate in Hz (default 1 / policy dt)")
     p.add_argument("--max-cycles", type=int, help="stop after this many cycles")
+    p.add_argument(
+        "--no-warm-up",
+        dest="warm_up",
+        action="store_false",
+        help="skip the warm-up pass (zones + actor on the previous cycle's inputs, results "
+        "discarded) that brings weights and code back into cache before each cycle",
+    )
     g = p.add_argument_group("lidar (RPLIDAR)")
     g.add_argument("--lidar-port", default="/dev/ttyUSB0")
     g.add_argument("--lidar-baud", type=int, default=115200)
@@ -221,6 +228,7 @@ def drive(args: argparse.Namespace) -> int:
         goal_tolerance=_default(args.goal_tolerance, policy.env, "T_g", 0.15),
         collision_distance=None if collision is None or collision < 0 else collision,
         max_cycles=args.max_cycles,
+        warm_up=args.warm_up,
     )
     controller = Controller(policy, builder, drive_model, loop_cfg)
     if args.dry_run:

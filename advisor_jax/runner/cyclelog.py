@@ -9,7 +9,8 @@ Schema (every line is one JSON object with a ``type``)::
      ran; false when a source failed), "state" ("run" | "stop" | "done"), "reason", "message",
      "scan": {"stamp", "n", "points"?}, "pose": {"x", "y", "theta", "t", "stamp"},
      "obs" [20], "action" [V, ω], "physical" [v m/s, w rad/s], "command" {"kind", ...},
-     "io_error", "compute_ms"}
+     "io_error", "compute_ms" (from reading the sources to the motor command, ms),
+     "warm_ms" (the warm-up pass before it, ms; null without LoopConfig.warm_up)}
     {"type": "footer", "cycles", "stops" {reason: count}, "overruns", "end"}
 
 A scan's ``points`` (the raw RPLIDAR triples) are written the first time the loop uses that

@@ -2,6 +2,7 @@
 
 Each cycle (period 1 / rate_hz, default the training dt)::
 
+    warm-up (warm_up): zones + actor once on the previous cycle's scan and obs, discarded
     now  = clock()
     scan = scans.latest();  pose = poses.latest()            # newest data + timestamps
     watchdog: no data / stale (age > max_*_age) / invalid     → STOP, reason logged
@@ -64,6 +65,13 @@ class LoopConfig:
     """m; min zone ≤ this ends the run as a collision (T_c). None: never."""
     max_cycles: int | None = None
     """End after this many cycles (None: run until goal, collision or Ctrl-C)."""
+    warm_up: bool = True
+    """Before each cycle, run its stateless heavy parts (zone reduction, actor) once on the
+    previous cycle's scan and observation and discard the results (``Controller.warm``).
+    After the idle part of the period the weights and numpy's code are out of the caches;
+    this pass brings them back before the sources are read, so the cycle from data to
+    command runs warm (experiments/bench_runner.py: the after-sleep rows). Costs about one
+    more cold observation + MLP of CPU per cycle."""
 
     def __post_init__(self):
         for name in ("rate_hz", "max_scan_age", "max_pose_age"):
@@ -107,6 +115,18 @@ class Controller:
             "drive": self.drive.describe(),
             "loop": dataclasses.asdict(self.config),
         }
+
+    def warm(self, scan: Scan | None, obs: np.ndarray | None) -> None:
+        """Runs the zone reduction on ``scan`` and the actor on ``obs`` and discards both
+        (``LoopConfig.warm_up``). Both are stateless: the builder's pose history and every
+        later cycle's result are untouched. Never raises: whatever is wrong with these
+        inputs was already reported by the cycle that produced them."""
+        for part, arg in ((self.builder.zones, scan), (self.policy.act, obs)):
+            if arg is not None:
+                try:
+                    part(arg)
+                except Exception:  # noqa: BLE001 - a warm-up's failure changes nothing
+                    pass
 
     def cycle(self, now: float, scan: Scan | None, pose: Pose | None) -> CycleResult:
         cfg = self.config
@@ -183,9 +203,17 @@ def run_loop(
     summary = LoopSummary()
     period = 1.0 / controller.config.rate_hz
     logged_scan: Scan | None = None
+    warm_scan: Scan | None = None
+    warm_obs: np.ndarray | None = None
     deadline = clock()
     try:
         while True:
+            if controller.config.warm_up:
+                warm_started = time.perf_counter()
+                controller.warm(warm_scan, warm_obs)
+                warm_ms = (time.perf_counter() - warm_started) * 1e3
+            else:
+                warm_ms = None
             now = clock()
             started = time.perf_counter()
             scan, scan_err = _latest(scans, "scan")
@@ -207,6 +235,8 @@ def run_loop(
                 summary.stops["motor_error"] += 1
                 _stop_quietly(motor)
             compute_ms = (time.perf_counter() - started) * 1e3
+            if result.obs is not None:
+                warm_scan, warm_obs = scan, result.obs
             summary.cycles += 1
             if result.state != RUN:
                 summary.stops[result.reason] += 1
@@ -223,6 +253,7 @@ def run_loop(
                         io_error,
                         with_points=new_scan,
                         compute_ms=compute_ms,
+                        warm_ms=warm_ms,
                     )
                 )
                 logged_scan = scan if scan is not None else logged_scan
@@ -259,7 +290,7 @@ def _stop_quietly(motor: MotorDriver) -> None:
         pass
 
 
-def _record(i, now, scan, pose, result, ran, io_error, *, with_points, compute_ms) -> dict:
+def _record(i, now, scan, pose, result, ran, io_error, *, with_points, compute_ms, warm_ms) -> dict:
     return {
         "type": "cycle",
         "i": i,
@@ -277,6 +308,7 @@ def _record(i, now, scan, pose, result, ran, io_error, *, with_points, compute_m
         "command": None if result.command is None else result.command.as_dict(),
         "io_error": io_error,
         "compute_ms": compute_ms,
+        "warm_ms": warm_ms,
     }
 
 

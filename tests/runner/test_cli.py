@@ -93,7 +93,13 @@ def test_dry_run_then_replay(export_dir, tmp_path, capsys, monkeypatch):
     assert header["loop"]["goal_tolerance"] == 0.15 and header["loop"]["collision_distance"] == 0.1
     assert header["observation"]["range_offset"] == 0.22
     assert len(cycles) == 6 and all(c["state"] == "run" for c in cycles)
+    assert header["loop"]["warm_up"] and all(c["warm_ms"] >= 0 for c in cycles)
     assert footer["end"] == "max_cycles"
+    cold = tmp_path / "cold.jsonl"
+    assert cli.main([*args, "--log", str(cold), "--no-warm-up"]) == 0
+    lines = [json.loads(x) for x in cold.read_text().splitlines()]
+    assert lines[0]["loop"]["warm_up"] is False and all(c["warm_ms"] is None for c in lines[1:-1])
+    capsys.readouterr()
     assert cli.main(["--replay", str(log)]) == 0
     assert "replayed 6 of 6 cycles (6 driving)" in capsys.readouterr().out
     # A log recorded with other weights cannot be replayed with this policy.

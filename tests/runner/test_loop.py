@@ -145,7 +145,7 @@ class FlakyPolicy:
 def test_policy_exception_and_nan_stop_the_car(policy, tmp_path):
     clock = FakeClock()
     flaky = FlakyPolicy(policy, raise_on=(2,), nan_on=(4,))
-    ctrl = controller(flaky, max_cycles=5)
+    ctrl = controller(flaky, max_cycles=5, warm_up=False)  # one act per cycle: calls = cycles
     summary, motor, cycles, _ = run(
         ctrl,
         ScriptedSource([fresh_scan(clock)]),
@@ -228,7 +228,7 @@ def test_overruns_are_counted_not_queued(policy, tmp_path):
     assert summary.overruns == 3 and clock.sleeps == []
 
 
-def _mixed_run(policy, tmp_path):
+def _mixed_run(policy, tmp_path, **loop):
     clock = FakeClock()
     pose = moving_pose(clock, speed=0.3)
     rng = np.random.default_rng(0)
@@ -248,8 +248,56 @@ def _mixed_run(policy, tmp_path):
 
     scans = [every_other] * 6 + [None, every_other, OSError("glitch")] + [every_other] * 31
     poses = [pose] * 12 + [lambda: Pose(9.0, 0.0, 0.0, clock.t - 1000, clock.t)] + [pose] * 27
-    ctrl = controller(policy, max_cycles=40, max_scan_age=0.2)
+    ctrl = controller(policy, max_cycles=40, max_scan_age=0.2, **loop)
     return run(ctrl, ScriptedSource(scans), ScriptedSource(poses), clock, tmp_path)
+
+
+class SpyPolicy(FlakyPolicy):
+    """Records every observation it is given."""
+
+    def __init__(self, policy, **flaky):
+        super().__init__(policy, **flaky)
+        self.seen = []
+
+    def act(self, obs):
+        self.seen.append(np.asarray(obs).tolist())
+        return super().act(obs)
+
+
+def test_warm_up_changes_nothing_but_the_caches(policy, tmp_path):
+    def untimed(cycles):
+        return [
+            {k: v for k, v in c.items() if k not in ("wall", "compute_ms", "warm_ms")}
+            for c in cycles
+        ]
+
+    (tmp_path / "plain").mkdir(), (tmp_path / "warm").mkdir()
+    *_, plain, _ = _mixed_run(policy, tmp_path / "plain", warm_up=False)
+    spy = SpyPolicy(policy)
+    *_, warmed, _ = _mixed_run(spy, tmp_path / "warm", warm_up=True)
+    assert untimed(warmed) == untimed(plain)
+    assert all(c["warm_ms"] is None for c in plain) and all(c["warm_ms"] >= 0 for c in warmed)
+    # Before each cycle the warm-up runs the actor once on the newest observation so far.
+    expected, last = [], None
+    for c in plain:
+        if last is not None:
+            expected.append(last)
+        if c["action"] is not None:  # this cycle ran the actor
+            expected.append(c["obs"])
+        last = c["obs"] if c["obs"] is not None else last
+    assert spy.seen == expected and len(expected) > 60
+
+
+def test_warm_up_never_raises(policy):
+    flaky = FlakyPolicy(policy, raise_on=(1,))
+    ctrl = controller(flaky)
+    bad = ring_scan(0.9, 0.0)
+    bad.points[3, 1] = math.nan
+    ctrl.warm(bad, np.zeros(20, np.float32))  # scan_nan and "BLAS fell over", both absorbed
+    ctrl.warm(None, None)
+    assert flaky.calls == 1
+    ctrl.warm(ring_scan(0.9, 0.0), np.zeros(20, np.float32))
+    assert flaky.calls == 2 and ctrl.builder._prev is None  # stateless: no pose recorded
 
 
 def test_replay_reproduces_the_log(policy, tmp_path, capsys):
