@@ -30,7 +30,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as advisor-jax-car sets it, before numpy
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import subprocess  # noqa: E402
@@ -42,9 +41,9 @@ import types  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from advisor_jax.runner.cyclelog import JsonlLog  # noqa: E402
+from advisor_jax.runner.cyclelog import JsonlLog, read_log  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive  # noqa: E402
-from advisor_jax.runner.loop import Controller, LoopConfig, run_loop  # noqa: E402
+from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
 from advisor_jax.runner.observation import (  # noqa: E402
     ObservationBuilder,
     ObservationConfig,
@@ -145,13 +144,14 @@ def loop_compute_us(controller: Controller, scans: list, poses: list, cycles: in
     runs it); returns the per-cycle ``compute_ms`` the log records, in µs."""
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "loop.jsonl")
-        run_loop(controller, _Cycling(scans), _Cycling(poses), _NullMotor(), log=JsonlLog(path))
-        with open(path, encoding="utf-8") as f:
-            records = [json.loads(line) for line in f]
-    cycles_run = [r for r in records if r["type"] == "cycle"]
-    if len(cycles_run) != cycles or any(r["state"] != "run" for r in cycles_run):
-        raise RuntimeError(f"loop did not drive all {cycles} cycles: {records[-1]}")
-    return np.array([r["compute_ms"] * 1e3 for r in cycles_run])
+        log = JsonlLog(path)
+        log.write(log_header(controller, controller.policy))
+        summary = run_loop(controller, _Cycling(scans), _Cycling(poses), _NullMotor(), log=log)
+        _, records = read_log(path)
+        times = [r["compute_ms"] * 1e3 for r in records]
+    if len(times) != cycles or summary.stops:
+        raise RuntimeError(f"loop did not drive all {cycles} cycles: {summary.as_dict()}")
+    return np.array(times)
 
 
 def cpu_name() -> str:
