@@ -81,6 +81,23 @@ def export_paper_actor(out_dir: str) -> None:
     )
 
 
+def load_paper_actor():
+    """The paper-size actor, exported in a child process (JAX never enters this one) and
+    loaded and verified as the car loads it."""
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run([sys.executable, __file__, "--export-only", tmp], check=True)
+        policy = load_policy(tmp)
+    assert "jax" not in sys.modules
+    return policy
+
+
+def write_report(path: str, lines: list[str]) -> None:
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write("\n".join(lines))
+    print(f"wrote {path}", file=sys.stderr)
+
+
 def synthetic_scan(rng: np.random.Generator, stamp: float) -> Scan:
     """200 readings over one turn, ~5 % invalid (0 mm), at the resolution the ``rplidar``
     package reports: angle in 1/64 degree (clockwise), distance in 1/4 mm."""
@@ -177,6 +194,22 @@ def virtualisation() -> str:
     return "bare metal" if "cpu" in out.lower() else "unknown virtualisation"
 
 
+def reproduce_command(script: str, parser: argparse.ArgumentParser, args) -> str:
+    """The command line that reproduces this run: the non-default options, and the ``nice``
+    and ``taskset`` it ran under."""
+    command = f"python {script}" + "".join(
+        f" --{k.replace('_', '-')} {v}"
+        for k, v in vars(args).items()
+        if k not in ("out", "export_only") and v != parser.get_default(k)
+    )
+    if os.nice(0) != 0:
+        command = f"nice -n {os.nice(0)} {command}"
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < (os.cpu_count() or 0):
+        command = f"taskset -c {','.join(map(str, cpus))} {command}"
+    return command
+
+
 def stats(name: str, times: np.ndarray, blocks: list[np.ndarray] | None = None) -> tuple:
     p50, p90, p99 = np.percentile(times, [50, 90, 99])
     spread = ""
@@ -206,10 +239,7 @@ def main() -> None:
         export_paper_actor(args.export_only)
         return
 
-    with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run([sys.executable, __file__, "--export-only", tmp], check=True)
-        policy = load_policy(tmp)
-    assert "jax" not in sys.modules
+    policy = load_paper_actor()
     rng = np.random.default_rng(0)
     scans = [synthetic_scan(rng, 0.0) for _ in range(64)]
     cfg = ObservationConfig(range_offset=policy.range_offset, bounds=policy.bounds)
@@ -296,16 +326,7 @@ def main() -> None:
     target = rows[0]
     met = target[4] <= 200.0
     threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    command = "python experiments/bench_runner.py" + "".join(
-        f" --{k.replace('_', '-')} {v}"
-        for k, v in vars(args).items()
-        if k not in ("out", "export_only") and v != parser.get_default(k)
-    )
-    if os.nice(0) != 0:
-        command = f"nice -n {os.nice(0)} {command}"
-    cpus = sorted(os.sched_getaffinity(0))
-    if len(cpus) < (os.cpu_count() or 0):
-        command = f"taskset -c {','.join(map(str, cpus))} {command}"
+    command = reproduce_command("experiments/bench_runner.py", parser, args)
     lines = [
         "# Runner latency (numpy-only car runner)",
         "",
@@ -356,10 +377,7 @@ def main() -> None:
         "that does nothing, with the loop's JSONL log written as on the car.",
         "",
     ]
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    with open(args.out, "w", encoding="utf-8") as f:
-        f.write("\n".join(lines))
-    print(f"wrote {args.out}", file=sys.stderr)
+    write_report(args.out, lines)
 
 
 if __name__ == "__main__":
