@@ -80,8 +80,9 @@ def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
     from advisor_jax.networks import Actor
 
     path, sep, suffix = policy.rpartition(":")
-    index = int(suffix) if sep and suffix.isdigit() else 0
-    directory = Path(path if sep and suffix.isdigit() else policy)
+    has_index = bool(sep) and suffix.isdigit()
+    index = int(suffix) if has_index else 0
+    directory = Path(path if has_index else policy)
     if (directory / "policy.json").is_file():
         from advisor_jax.closed_loop import actor_params_from_policy
         from advisor_jax.runner.policy import load_policy

@@ -83,9 +83,9 @@ class Learner(NamedTuple):
     the min over the critics (Alg. A2 steps 11-12); Q itself for one critic."""
     critic_step: Callable[[LearnerState, Transition, jax.Array, HParams], tuple[Any, Metrics]]
     """(state, batch, key, hp) -> (state, metrics): one critic update."""
-    actor_step: Callable[..., tuple[Any, Metrics]]  # (state, batch, hp, episode=0)
-    """(state, batch, hp) -> (state, metrics): one actor update and the soft update of all
-    targets."""
+    actor_step: Callable[..., tuple[Any, Metrics]]
+    """(state, batch, hp, episode=0) -> (state, metrics): one actor update and the soft update
+    of all targets; ``episode`` (episodes completed) gates the AfP replacement by N_P."""
 
 
 # Pure pieces ----------------------------------------------------------------------------

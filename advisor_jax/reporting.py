@@ -211,10 +211,17 @@ def plot_learning_curves(path: Path, metrics, agents, grid, cfg) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(f"{cfg.agent.name} in '{cfg.arena}': mean ± std over seeds")
+    save_png(fig, path)
+
+
+def save_png(fig, path: str | Path) -> Path:
+    """Writes a matplotlib figure as PNG (110 dpi) atomically and closes it."""
+    import matplotlib.pyplot as plt
+
     buf = io.BytesIO()
     fig.savefig(buf, dpi=110, format="png")
     plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    return atomic_write_bytes(path, buf.getvalue())
 
 
 def mean_ci95(values: Sequence[float]) -> tuple[float, float]:

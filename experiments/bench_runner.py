@@ -41,6 +41,7 @@ import types  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from advisor_jax.fileio import atomic_write_text  # noqa: E402
 from advisor_jax.runner.cyclelog import JsonlLog, read_log  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive  # noqa: E402
 from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
@@ -92,9 +93,7 @@ def load_paper_actor():
 
 
 def write_report(path: str, lines: list[str]) -> None:
-    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    with open(path, "w", encoding="utf-8") as f:
-        f.write("\n".join(lines))
+    atomic_write_text(path, "\n".join(lines))
     print(f"wrote {path}", file=sys.stderr)
 
 

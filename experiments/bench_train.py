@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import platform
 import sys
 import time
@@ -27,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from advisor_jax.config import preset
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.run import population_functions
 from advisor_jax.sweep import agent_keys, build_population
 
@@ -74,8 +74,7 @@ def main() -> None:
         backend=jax.default_backend(), host=platform.node(), jax=jax.__version__,
         preset=args.preset, agent=args.agent, chunk=args.chunk, rows=rows,
     )  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench_train.json").write_text(json.dumps(result, indent=2) + "\n")
+    atomic_write_json(args.out / "bench_train.json", result)
     lines = [
         "# Training throughput (full step: env + advisor + selector + update)",
         "",
@@ -92,7 +91,7 @@ def main() -> None:
         f"Command: `python experiments/bench_train.py {' '.join(sys.argv[1:])}`",
         "",
     ]
-    (args.out / "bench_train.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "bench_train.md", "\n".join(lines))
 
 
 if __name__ == "__main__":

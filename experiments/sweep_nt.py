@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
 from advisor_jax.config import preset
-from advisor_jax.reporting import group_agents, mean_ci95
+from advisor_jax.fileio import atomic_write_text
+from advisor_jax.reporting import group_agents, mean_ci95, save_png
 
 
 def main() -> None:
@@ -80,10 +80,7 @@ def main() -> None:
     ax.set_title(f"{summary['agent']}, {n_total} episodes (Fig. 6)")
     ax.grid(alpha=0.3)
     ax.legend()
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format="png")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "sweep_nt.png").write_bytes(buf.getvalue())
+    save_png(fig, args.out / "sweep_nt.png")
 
     arenas = list(ev)
     nt_values = " ".join(f"{r['N_T']:g}" for r in rows)
@@ -112,7 +109,7 @@ def main() -> None:
         f"{nt_values} --runs {args.runs} --out {args.out}`",
         "",
     ]
-    (args.out / "sweep_nt.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "sweep_nt.md", "\n".join(lines))
     print("\n".join(lines))
 
 

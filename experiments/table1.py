@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import io
 import json
 import sys
 from pathlib import Path
@@ -21,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from advisor_jax.config import PAPER_AGENTS, preset
-from advisor_jax.reporting import mean_ci95, moving_average
+from advisor_jax.fileio import atomic_write_text
+from advisor_jax.reporting import mean_ci95, moving_average, save_png
 
 PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
     "DDPG": (72.2, 71.3),
@@ -118,10 +118,7 @@ def summarize(args) -> None:
         ax.set_xlabel("episode")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format="png")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "table1.png").write_bytes(buf.getvalue())
+    save_png(fig, args.out / "table1.png")
     lines += [
         "",
         "![learning curves](table1.png)",
@@ -132,7 +129,7 @@ def summarize(args) -> None:
         f"{args.runs} --out {args.out}`.",
         "",
     ]
-    (args.out / "table1.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "table1.md", "\n".join(lines))
     print("\n".join(lines))
 
 
