@@ -29,6 +29,7 @@ from rich.table import Table
 from rich.text import Text
 
 from advisor_jax.export_cli import ExportArgs, export_command
+from advisor_jax.fileio import atomic_write_text
 from advisor_jax.runner.errors import RunnerError
 from advisor_jax.train_cli import TrainArgs, train_command
 
@@ -59,10 +60,7 @@ def arena(
     env = _envs().make_env(name)
     boxes = env.layout_boxes(jax.random.PRNGKey(seed)) if env.procedural else None
     text = env.xml(boxes)
-    try:
-        xml.write_text(text)
-    except OSError as err:
-        raise OSError(f"cannot write {xml}: {err.strerror or err}") from err
+    atomic_write_text(xml, text)  # OSError: 'cannot write <xml>: <why>'
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
 
 

@@ -22,6 +22,8 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except FileExistsError as e:  # mkdir met a file where a directory should be
+        raise OSError(f"cannot write {path}: {e.filename} is not a directory") from e
     except OSError as e:
         raise OSError(f"cannot write {path}: {e.strerror or e}") from e
     try:

@@ -31,6 +31,7 @@ import numpy as np
 import tyro
 
 import envs
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,7 +275,7 @@ def main(args: Args) -> dict:
         n = max(args.envs)
         state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
         hlo = jax.jit(jax.vmap(env.step)).lower(state, jnp.zeros((n, 2))).compile().as_text()
-        pathlib.Path(args.out + "_hlo.txt").write_text(hlo)
+        atomic_write_text(args.out + "_hlo.txt", hlo)
     if args.breakdown:
         result["breakdown"] = bench_parts(env, max(args.envs), args.steps, args.repeats)
         print("breakdown", result["breakdown"], flush=True)
@@ -288,12 +289,11 @@ def main(args: Args) -> dict:
 def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     """Writes ``out``.json ({"runs": [...]}) and ``out``.md, one section per run; with
     ``append`` the runs already in ``out``.json are kept (CPU and GPU runs in one file)."""
-    out.parent.mkdir(parents=True, exist_ok=True)
     runs = []
     if append and out.with_suffix(".json").exists():
         runs = json.loads(out.with_suffix(".json").read_text())["runs"]
     runs.append(result)
-    out.with_suffix(".json").write_text(json.dumps({"runs": runs}, indent=2) + "\n")
+    atomic_write_json(out.with_suffix(".json"), {"runs": runs})
     lines = [
         "# Env benchmark: steps per second of the navigation env",
         "",
@@ -305,7 +305,7 @@ def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     ]
     for run in runs:
         lines += _section(run)
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out.with_suffix(".md"), "\n".join(lines) + "\n")
 
 
 def _section(result: dict) -> list[str]:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import json
 import platform
 import sys
 import time
@@ -30,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax.config import HParams, parse_agent
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.learner import make_learner
 from advisor_jax.replay import Transition, replay_add, replay_init, replay_sample
 from advisor_jax.runner import spec
@@ -252,8 +252,7 @@ def main() -> None:
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, copy_gbs=copy_gbs, rows=rows,
     )  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench_learner.json").write_text(json.dumps(result, indent=2) + "\n")
+    atomic_write_json(args.out / "bench_learner.json", result)
     lines = [
         "# Learner throughput",
         "",
@@ -292,7 +291,7 @@ def main() -> None:
             *[f"| {k} | {1e6 * v:.1f} |" for k, v in pieces],
         ]
     lines += ["", f"Command: `python experiments/bench_learner.py {' '.join(sys.argv[1:])}`", ""]
-    (args.out / "bench_learner.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "bench_learner.md", "\n".join(lines))
     print(np.round([r["agent_updates_per_s"] for r in rows]))
 
 

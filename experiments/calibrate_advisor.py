@@ -32,6 +32,7 @@ import tyro
 import envs
 from advisor_jax.advisor import advisor_action
 from advisor_jax.evaluate import make_evaluate, summary
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,8 +99,7 @@ def _pct(x: float) -> str:
 
 
 def write(result: dict, out: pathlib.Path) -> None:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
+    atomic_write_json(out.with_suffix(".json"), result)
     paper = {"training": "53.6 %", "validation": "50.4 %", "physical": "32 % (real car)"}
     lines = [
         "# Advisor calibration (paper §6.1, §6.3)",
@@ -148,7 +148,7 @@ def write(result: dict, out: pathlib.Path) -> None:
                 f"| {r['arena']} | {r['omega_max']:g} | {_pct(r['success_rate'])} | "
                 f"{_pct(r['collision_rate'])} | {_pct(r['timeout_rate'])} |"
             )
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out.with_suffix(".md"), "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

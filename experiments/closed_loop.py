@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import platform
 import time
 from pathlib import Path
@@ -22,6 +21,7 @@ import numpy as np
 
 import envs
 from advisor_jax.closed_loop import binomial_ci95, run_closed_loop
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.runner.policy import load_policy
 
 
@@ -47,8 +47,7 @@ def main() -> None:
         episodes=args.episodes, seed=args.seed, seconds=round(seconds, 1), stops=r.stops,
         agreement=r.agreement, rates=rows,
     )  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "closed_loop.json").write_text(json.dumps(result, indent=2) + "\n")
+    atomic_write_json(args.out / "closed_loop.json", result)
     ci = binomial_ci95(r.jax_success, args.episodes)
     lines = [
         "# Closed loop: numpy car runner vs JAX actor",
@@ -78,7 +77,7 @@ def main() -> None:
         f"--seed {args.seed}`",
         "",
     ]
-    (args.out / "closed_loop.md").write_text("\n".join(lines))
+    atomic_write_text(args.out / "closed_loop.md", "\n".join(lines))
     print("\n".join(lines))
 
 

@@ -119,12 +119,21 @@ def test_cli_procedural_seed_is_the_first_episode_layout(sim, tmp_path, capsys):
         np.testing.assert_allclose(geom.size[:2], (hx, hy), atol=1e-5)
 
 
+def test_cli_creates_missing_directories(tmp_path, capsys):
+    target = tmp_path / "new" / "dir" / "arena.xml"
+    assert _run(["arena", "training", "--xml", str(target)], capsys)[0] == 0
+    assert mujoco.MjModel.from_xml_path(str(target)).nsensor == 16
+    assert [p.name for p in target.parent.iterdir()] == ["arena.xml"]  # no temporary left
+
+
 def test_cli_unwritable_path_is_a_one_line_error(tmp_path, capsys):
-    target = tmp_path / "missing_dir" / "arena.xml"
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a directory")
+    target = blocker / "arena.xml"
     code, out, err = _run(["arena", "training", "--xml", str(target)], capsys)
     assert code == 2 and out == ""
     lines = [line for line in err.splitlines() if line.strip()]
-    assert lines[-1].startswith("error: cannot write") and str(target) in lines[-1]
+    assert lines[-1] == f"error: cannot write {target}: {blocker} is not a directory"
     assert "Traceback" not in err
 
 
