@@ -107,6 +107,12 @@ def synthetic_scan(rng: np.random.Generator, stamp: float) -> Scan:
     return Scan(np.stack([quality, angles, dist], axis=1), stamp)
 
 
+def swinging_poses(n: int) -> list[Pose]:
+    """Tracked poses of a car swinging along x at up to 0.5 m/s, 20 Hz. Made up front: the
+    tracker thread builds each Pose when it arrives, outside the control cycle."""
+    return [Pose(math.sin(0.05 * i), 0.1, 0.2, 0.05 * i, 0.0) for i in range(n)]
+
+
 def timed(
     cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None
 ) -> dict[str, np.ndarray]:
@@ -213,15 +219,11 @@ def stats(name: str, times: np.ndarray, blocks: list[np.ndarray] | None = None) 
     p50, p90, p99 = np.percentile(times, [50, 90, 99])
     spread = ""
     if blocks:
-        lo, hi = (np.percentile(b, 99) for b in (min(blocks, key=_p99), max(blocks, key=_p99)))
-        spread = f"{lo:.0f}–{hi:.0f}"
+        block_p99 = [np.percentile(b, 99) for b in blocks]
+        spread = f"{min(block_p99):.0f}–{max(block_p99):.0f}"
     row = (name, len(times), p50, p90, p99, times.max(), spread)
     print("{:44s} n {:6d}  p50 {:6.1f}  p90 {:6.1f}  p99 {:6.1f}  max {:8.1f} µs {}".format(*row))
     return row
-
-
-def _p99(block: np.ndarray) -> float:
-    return float(np.percentile(block, 99))
 
 
 def main() -> None:
@@ -249,10 +251,7 @@ def main() -> None:
         LoopConfig(max_scan_age=1e9, max_pose_age=1e9),
     )
 
-    # A car swinging along x at up to 0.5 m/s, 20 Hz. Made up front: the tracker thread
-    # builds each Pose when it arrives, outside the control cycle.
-    n_poses = max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles)
-    poses = [Pose(math.sin(0.05 * i), 0.1, 0.2, 0.05 * i, 0.0) for i in range(n_poses)]
+    poses = swinging_poses(max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles))
 
     obs0 = ObservationBuilder(cfg, (2.0, 1.0)).build(scans[0], poses[0])
     # Each case gets its own builder, reset before every timed run (whose calls count from

@@ -39,7 +39,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as advisor-jax-car sets it
 import argparse  # noqa: E402
 import gzip  # noqa: E402
 import itertools  # noqa: E402
-import math  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -49,13 +48,14 @@ from bench_runner import (  # noqa: E402
     cpu_name,
     load_paper_actor,
     reproduce_command,
+    swinging_poses,
     synthetic_scan,
     timed,
     virtualisation,
     write_report,
 )
 
-from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig, Pose  # noqa: E402
+from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
 
 BUSY_GAPS_MS = (0.05, 0.1, 0.3, 1.0, 2.0, 5.0, 10.0)
 SLEEP_GAPS_MS = (5.0, 50.0)
@@ -113,7 +113,7 @@ def after_gaps(
 def cycle_subject(policy, scans: list, cfg: ObservationConfig) -> Callable[[], object]:
     """obs+mlp on the next scan and pose of a car swinging along x (as bench_runner.py)."""
     builder = ObservationBuilder(cfg, (2.0, 1.0))
-    poses = [Pose(math.sin(0.05 * i), 0.1, 0.2, 0.05 * i, 0.0) for i in range(4096)]
+    poses = swinging_poses(4096)
     counter = itertools.count()
 
     def call():
