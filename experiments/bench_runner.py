@@ -58,8 +58,6 @@ from advisor_jax.runner.observation import (  # noqa: E402
 from advisor_jax.runner.policy import load_policy  # noqa: E402
 from advisor_jax.runner.zones import reduce_to_zones  # noqa: E402
 
-DATE = "2026-11-22"
-
 
 def export_paper_actor(out_dir: str) -> None:
     import jax
@@ -328,7 +326,8 @@ def main() -> None:
     lines = [
         "# Runner latency (numpy-only car runner)",
         "",
-        f"Date: {DATE}. Machine: {cpu_name()}, {os.cpu_count()} cores ({virtualisation()}), Linux, "
+        f"Date: {time.strftime('%Y-%m-%d')}. Machine: {cpu_name()}, {os.cpu_count()} cores "
+        f"({virtualisation()}), Linux, "
         f"Python {platform.python_version()}, numpy {np.__version__} (OpenBLAS), BLAS threads "
         f"env {threads} (advisor-jax-car sets OPENBLAS_NUM_THREADS=1 the same way).",
         f"Load average (1 min) before/after: {load_before:.1f} / {load_after:.1f} on "
