@@ -61,6 +61,13 @@ def population():
 
 
 @pytest.fixture(scope="session")
+def initial_state(population):
+    """The population's state before training (what ``population`` started from)."""
+    _, init_fn, _ = population_functions(TINY)
+    return jax.device_get(init_fn(agent_keys(population[2])))
+
+
+@pytest.fixture(scope="session")
 def single_runs(population):
     """The healthy agents run one by one with the unvmapped functions."""
     _, hp, seeds = population

@@ -4,40 +4,52 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 
 import envs
-from tests.train.conftest import GOOD, TINY, agent_slice
+from advisor_jax.run import population_functions
+from advisor_jax.sweep import agent_keys
+from tests.compare import assert_same_training
+from tests.train.conftest import GOOD, TINY, agent_slice, run_chunks
 
 
-def _assert_same(a, b, what, atol=1e-5):
-    """Integers exactly; floats to ``atol``.
-
-    A vmapped matmul sums in another order than a lone one, so floats differ in the last
-    bits, and Adam's g / (|g| + ε) turns a last-bit difference of a near-zero gradient into
-    up to ~1 % of one learning-rate step. Parameters therefore get a tolerance of a few
-    learning-rate steps; the discrete trajectory (outcomes, lengths, firing counts) must be
-    identical, which it only is if every selector, noise and environment decision agreed.
-    """
-    leaves_a, tree_a = jax.tree_util.tree_flatten(a)
-    leaves_b, tree_b = jax.tree_util.tree_flatten(b)
-    assert tree_a == tree_b
-    for x, y in zip(leaves_a, leaves_b, strict=True):
-        x, y = np.asarray(x), np.asarray(y)
-        if np.issubdtype(x.dtype, np.floating):
-            np.testing.assert_allclose(x, y, rtol=1e-3, atol=atol, err_msg=what)
-        else:
-            np.testing.assert_array_equal(x, y, err_msg=what)
+def _assert_same(a, b, what):
+    """Bit-identical: the same code path run twice (used for frozen agents)."""
+    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y), err_msg=what)
 
 
-def test_vmapped_population_equals_single_runs(population, single_runs):
-    state, _, _ = population
+def _check_against_single_runs(state, initial, single_runs):
+    """Every healthy agent of ``state`` equals its lone run (``assert_same_training``)."""
     for i, single in enumerate(single_runs):
-        vm = agent_slice(state, i)
-        _assert_same(vm.log, single.log, f"episode log of agent {i}")
-        lr = 1e-3  # both learning rates of the population
-        _assert_same(vm.learner, single.learner, f"learner of agent {i}", atol=0.3 * lr)
+        vm, start = agent_slice(state, i), agent_slice(initial, i)
+        assert_same_training(vm.log, single.log, start.log, f"episode log of agent {i}")
+        assert_same_training(vm.learner, single.learner, start.learner, f"learner of agent {i}")
         assert int(vm.episodes) == int(single.episodes)
         assert int(vm.env_steps) == int(single.env_steps)
+
+
+def test_vmapped_population_equals_single_runs(population, initial_state, single_runs):
+    _check_against_single_runs(population[0], initial_state, single_runs)
+
+
+def test_the_check_catches_a_broken_vmap(population, initial_state, single_runs):
+    """The comparison above fails for the two ways a vmap can mix agents up.
+
+    Swapped hyperparameters (agents 0 and 2 share seed 0 and differ only in β) leave the
+    discrete trajectory of these tiny runs identical, so only the parameter bound can catch
+    them; a reused key changes the episodes themselves.
+    """
+    _, init_fn, chunk_fn = population_functions(TINY)
+    _, hp, seeds = population
+    swapped = jax.tree_util.tree_map(lambda x: x[np.array([2, 1, 0, 3, 4])], hp)
+    keys = agent_keys(seeds)
+    reused = keys.at[1].set(keys[0])  # agent 1 draws agent 0's randomness
+    for label, run_hp, run_keys in (("swapped β", swapped, keys), ("reused key", hp, reused)):
+        broken = jax.device_get(run_chunks(init_fn, chunk_fn, run_keys, run_hp))
+        with pytest.raises(AssertionError):
+            _check_against_single_runs(broken, initial_state, single_runs)
+        print(f"{label}: caught")
 
 
 def test_grid_points_differ(population):
@@ -80,8 +92,6 @@ def test_episode_logs_are_consistent(population):
 def test_frozen_agent_parameters_do_not_move(population):
     """After its N_total-th episode an agent is frozen: one more chunk changes nothing."""
     import jax.numpy as jnp
-
-    from advisor_jax.run import population_functions
 
     state, hp, _ = population
     _, _, chunk_fn = population_functions(TINY)
