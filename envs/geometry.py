@@ -5,7 +5,7 @@ An arena is a set of boxes seen from above; walls are boxes too. A box is one ro
 axes (m) and rotation about +z (rad, counter-clockwise). Everything here is jit- and
 vmap-safe (no Python control flow on traced values) and works on any number of boxes.
 
-Used for (paper §5.1, §5.4; DESIGN.md "Environment"):
+Used for (paper §5.1, §5.4; docs/architecture.md, "Environment"):
 
 * the geometric half of the collision test: the robot circle (radius r) touches a box
   iff the signed distance from its centre to the box is <= r. This catches corners that

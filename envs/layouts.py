@@ -1,6 +1,6 @@
 """Arena layouts: boundary walls and sharp-edged box obstacles (paper §5.1, §5.2, Fig. 2).
 
-Coordinates: metres, world frame of ``advisor_jax/runner/spec.py`` (origin at the arena
+Coordinates: metres, world frame of ``advisor_jax/contract/spec.py`` (origin at the arena
 centre, x right, y up). Boxes are rows ``(cx, cy, hx, hy, angle)`` as in ``geometry.py``;
 the first four rows of every layout are the walls, which stand just outside ``bounds``
 (the free floor). All boxes are ``BOX_HEIGHT`` tall, higher than the sensor plane.

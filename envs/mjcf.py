@@ -1,12 +1,12 @@
 """MJCF builder: robot + range sensors + arena boxes → a standalone MuJoCo XML string.
 
 The model is what MJX needs to compute the paper's proximity readings (§5.1, §5.2) and
-nothing more (DESIGN.md "Environment"):
+nothing more (docs/architecture.md, "Environment"):
 
 * a round Pioneer-3DX-like robot: a sphere of radius r (MJX has no cylinder-box
   collisions and its rays ignore cylinders) on planar joints slide x, slide y, hinge z;
   its centre is at height r, so ``qpos = (x, y, θ)`` is the pose in the world frame;
-* ``rangefinder`` sensors on sites: the 16-sonar ring of ``runner/spec.py`` (sites on the
+* ``rangefinder`` sensors on sites: the 16-sonar ring of ``contract/spec.py`` (sites on the
   body circle at ``SONAR_MOUNTS_DEG`` looking along ``SONAR_DIRECTIONS_DEG``) or, for the
   physical arena, a lidar of n beams from the robot centre. A rangefinder looks along
   its site's +z axis, so each site's z axis is set horizontal;
@@ -38,8 +38,8 @@ import numpy as np
 with contextlib.redirect_stdout(io.StringIO()):
     from mujoco import mjx
 
-from advisor_jax.runner import spec
-from advisor_jax.runner.zones import reduce_to_zones
+from advisor_jax.contract import spec
+from advisor_jax.contract.zones import reduce_to_zones
 from envs.layouts import BOX_HEIGHT, procedural_active
 
 
@@ -256,7 +256,7 @@ class MjxSensors:
 
     def proximity(self, pose: jax.Array, boxes: jax.Array | None = None) -> jax.Array:
         """The 16 proximity readings P (m): sonar readings with −1 → max_range, or the
-        lidar reduced to 16 zones of free distance (``runner.zones.reduce_to_zones``)."""
+        lidar reduced to 16 zones of free distance (``contract.zones.reduce_to_zones``)."""
         raw = self.readings(pose, boxes).astype(jnp.float32)
         if self.rig.kind == "lidar":
             return reduce_to_zones(

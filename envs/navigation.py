@@ -1,12 +1,12 @@
 """The navigation environment: reset/step of one robot in one arena, jit- and vmap-safe.
 
-Paper §5.1–5.4, Eq. (8), Table A3; DESIGN.md "Environment". Per control step (dt)::
+Paper §5.1–5.4, Eq. (8), Table A3; docs/architecture.md, "Environment". Per control step (dt)::
 
     a      ← clip(action) (non-finite → stop, flagged)      V = a0·V_max, ω = a1·ω_max
     pose   ← unicycle move over dt (heading at mid-step: exact speed, 2nd-order arc)
     P      ← MJX rangefinders at the new pose (mjx.kinematics + mjx.sensor_pos), −1 → max_range;
-             physical arena: 200-beam lidar → 16 zones (runner.zones.reduce_to_zones)
-    obs    = [P, δ, d, v_x, v_y]                            (layout: advisor_jax/runner/spec.py)
+             physical arena: 200-beam lidar → 16 zones (contract.zones.reduce_to_zones)
+    obs    = [P, δ, d, v_x, v_y]                            (layout: advisor_jax/contract/spec.py)
     goal   = d_t ≤ T_g;  collision = min P ≤ T_c  or  robot circle touches a box (geometry)
     r      = c1 if goal, else −c2 if collision, else k1 (d_{t−1} − d_t) + k2 (p_t − p_{t−1})
     timeout after h_max steps without goal/collision (no special reward; a truncation)
@@ -17,10 +17,10 @@ computes the sensors (``mjcf.MjxSensors``), so the readings are MuJoCo's. The st
 only the pose, not ``mjx.Data``, which is rebuilt from a constant template each step.
 Fixed arenas keep one unbatched ``mjx.Model`` (closure constants); ``procedural`` carries
 its boxes in the state and writes them into ``geom_pos/size/quat`` of a per-env model
-(domain randomisation). Measured on an H100 (``results/bench_env.md``), this is faster than
-setting ``qvel`` and calling ``mjx.step``, whose sensors would also describe the pose
-before the move. Because vmap turns the auto-reset branch into a select, every step also
-samples a spawn and reads its sensors; both sensor passes share one vmapped MJX call.
+(domain randomisation). This is faster than setting ``qvel`` and calling ``mjx.step``
+(``results/bench_env.md``), whose sensors would also describe the pose before the move.
+Because vmap turns the auto-reset branch into a select, every step also samples a spawn
+and reads its sensors; both sensor passes share one vmapped MJX call.
 
 Episode spawns (``geometry``): start and goal uniform over the floor, heading uniform; the
 robot footprint is ≥ ``start_clearance`` (0.2 m) from every box at the start, so p_0 ≥ 0.2 m
@@ -28,105 +28,37 @@ robot footprint is ≥ ``start_clearance`` (0.2 m) from every box at the start, 
 fits there; |goal − start| ≥ ``min_goal_distance`` (1 m). Fixed arenas sample from
 precomputed free-cell tables (exact, one start candidate, goal candidates only rejected for
 the distance); the procedural arena rejection-samples 64 candidates. If no candidate
-qualifies, the best one is used and ``NavState.spawn_valid`` is False. That happens with
-probability below 1e-15 per spawn in the fixed arenas (by construction of the goal
-candidate count) and about 1e-12 in the procedural arena (start acceptance 53 % in the
-median layout, 28 % in the worst of 4000 layouts: 0.72^64 = 1e-9); the tests check that
-thousands of resets never need it.
+qualifies, the best one is used and ``NavState.spawn_valid`` is False; the fixed arenas'
+goal candidate count makes that vanishingly rare by construction, and the tests check
+that thousands of resets in every arena never need it.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 
-from advisor_jax.advisor import AdvisorParams
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 from envs import geometry, layouts, mjcf
 from envs.layouts import ARENA_SPECS
+from envs.state import (
+    COLLISION,
+    GOAL,
+    OMEGA_MAX,
+    OUTCOME_NAMES,
+    RUNNING,
+    SPAWN_CELL,
+    SPEED_HISTORY,
+    TIMEOUT,
+    EnvConfig,
+    NavState,
+)
 
-# Outcome codes of an episode (NavState.outcome).
-RUNNING, GOAL, COLLISION, TIMEOUT = 0, 1, 2, 3
-OUTCOME_NAMES = ("running", "goal", "collision", "timeout")
-OMEGA_MAX = 3.0  # rad/s; the paper leaves ω_max open (calibration, results/advisor.md)
-SPEED_HISTORY = 3  # steps averaged for the collision speed
-SPAWN_CELL = 0.02  # m, grid of the fixed arenas' free-cell spawn tables
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """Static environment settings; defaults are the paper's (Tables A1-A3) or documented."""
-
-    dt: float = spec.CONTROL_DT  # s, control period (V-REP's default step)
-    v_max: float = spec.V_MAX  # m/s, V = a0 · v_max
-    omega_max: float = OMEGA_MAX  # rad/s, ω = a1 · omega_max (not in the paper; calibrated)
-    max_range: float = spec.MAX_RANGE  # m, sensor cutoff; "no hit" reads this
-    robot_radius: float = 0.22  # m, round P3DX-like footprint
-    max_episode_steps: int = 0  # h_max; 0 → the arena's default (300, physical 150)
-    goal_tolerance: float = 0.15  # T_g, m
-    collision_distance: float = 0.1  # T_c, m
-    goal_reward: float = 10.0  # c1
-    collision_penalty: float = 10.0  # c2 (the reward is -c2)
-    k_distance: float = 5.0  # k1
-    k_proximity: float = 5.0  # k2
-    min_goal_distance: float = 1.0  # m, start-goal separation at spawn
-    start_clearance: float = 0.2  # m, free distance around the footprint at the start
-    goal_clearance: float = 0.1  # m, free distance around a footprint centred on the goal
-    spawn_candidates: int = 64  # candidates per spawn (first valid wins)
-    lidar_beams: int = 200  # physical arena's lidar
-    footprint_collision: bool = True  # geometric collision check besides the sensor rule
-
-    def __post_init__(self):
-        positive = ("dt", "v_max", "omega_max", "max_range", "robot_radius", "goal_tolerance")
-        non_negative = (
-            "collision_distance", "goal_reward", "collision_penalty", "k_distance",
-            "k_proximity", "min_goal_distance", "start_clearance", "goal_clearance",
-        )  # fmt: skip
-        for name in positive + non_negative:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"EnvConfig.{name} must be a number, got {value!r}")
-            if not math.isfinite(value) or value < 0 or (name in positive and value == 0):
-                kind = "positive" if name in positive else "non-negative"
-                raise ValueError(f"EnvConfig.{name} must be finite and {kind}, got {value}")
-        for name, low in (("max_episode_steps", 0), ("spawn_candidates", 1), ("lidar_beams", 16)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"EnvConfig.{name} must be an integer >= {low}, got {value!r}")
-        if self.collision_distance >= self.max_range:
-            raise ValueError(
-                f"EnvConfig.collision_distance={self.collision_distance} must be below "
-                f"max_range={self.max_range}"
-            )
-
-
-@struct.dataclass
-class NavState:
-    """State of one environment (all fields per env; vmap adds a leading axis)."""
-
-    obs: jax.Array  # [20] current observation (after auto-reset: the new episode's first)
-    reward: jax.Array  # () f32, of the last step
-    done: jax.Array  # () bool, the last step ended an episode
-    terminal: jax.Array  # () bool, ended by goal or collision (no bootstrap)
-    outcome: jax.Array  # () int32, outcome of the episode the last step ended, 0 if none
-    terminal_obs: jax.Array  # [20] s' of the last step (== obs unless done)
-    episode_return: jax.Array  # () f32, return of the ended episode (valid when done)
-    episode_length: jax.Array  # () int32, length of the ended episode (valid when done)
-    collision_speed: jax.Array  # () f32, mean |V| of its last 3 steps (valid on collision)
-    key: jax.Array  # PRNG key for the next spawn
-    pose: jax.Array  # [3] x, y, θ
-    goal: jax.Array  # [2]
-    steps: jax.Array  # () int32, steps taken in the current episode
-    running_return: jax.Array  # () f32, return so far of the current episode
-    speeds: jax.Array  # [3] |V| of the last three steps, newest last
-    invalid_action: jax.Array  # () bool, the last action was non-finite (treated as stop)
-    spawn_valid: jax.Array  # () bool, the current episode's spawn met every rule
-    layout: jax.Array  # [n, 5] boxes of a procedural arena; [0, 5] for fixed arenas
+__all__ = [
+    "COLLISION", "GOAL", "OMEGA_MAX", "OUTCOME_NAMES", "RUNNING", "TIMEOUT",
+    "EnvConfig", "NavEnv", "NavState",
+]  # fmt: skip
 
 
 class NavEnv:
@@ -174,17 +106,15 @@ class NavEnv:
                 )
             except ValueError as err:
                 raise ValueError(f"arena {arena!r}: {err}") from None
-        self._jit_step = jax.jit(self._step)
-        self._jit_reset = jax.jit(self._reset)
 
     # ---- static description -----------------------------------------------------------
     observation_size = spec.OBS_SIZE
     action_size = spec.ACTION_SIZE
 
     @property
-    def advisor_params(self) -> AdvisorParams:
-        """Table A1 advisor with this arena's obstacle threshold T_o."""
-        return AdvisorParams(obstacle_threshold=self._arena.obstacle_threshold)
+    def obstacle_threshold(self) -> float:
+        """T_o of this arena (m): the advisor's switch to obstacle avoidance (Table A1)."""
+        return self._arena.obstacle_threshold
 
     def xml(self, boxes: np.ndarray | None = None) -> str:
         """Standalone MJCF of this arena (procedural: of the given box array)."""
@@ -263,24 +193,23 @@ class NavEnv:
     def reset(self, key: jax.Array) -> NavState:
         """Fresh episode: random layout (procedural), start pose and goal.
 
-        Always goes through ``jax.jit`` (inlined when traced inside another jit), so that
-        ``jax.vmap(env.reset)(keys)`` compiles instead of running op by op."""
-        return self._jit_reset(key)
+        A pure function: jit it at the call site (``jax.jit(jax.vmap(env.reset))``)."""
+        key_next, layout, spawn = self._spawn(key)
+        return self._first_state(key_next, layout, spawn, self.proximity(spawn.pose, layout))
 
     def step(self, state: NavState, action: jax.Array) -> NavState:
         """One control step with auto-reset. ``action`` [2] normalised (V, ω).
 
-        Called on concrete values it first checks the action (ValueError on a wrong shape or
-        a non-finite value); traced (jit/vmap/scan), a non-finite action is a stop command
-        and sets ``invalid_action``."""
-        if isinstance(action, jax.core.Tracer) or isinstance(state.pose, jax.core.Tracer):
-            return self._jit_step(state, action)
-        bad = np.asarray(action)
-        if bad.shape != (spec.ACTION_SIZE,):
-            raise ValueError(f"action must have shape [2] (V, ω) for one env, got {bad.shape}")
-        if not np.all(np.isfinite(bad)):
-            raise ValueError(f"non-finite action {bad.tolist()}: V and ω must be finite numbers")
-        return self._jit_step(state, action)
+        A pure function: jit it at the call site. Called on a concrete action it first
+        checks it (ValueError on a wrong shape or a non-finite value); traced (jit, vmap,
+        scan), a non-finite action is a stop command and sets ``invalid_action``."""
+        if not isinstance(action, jax.core.Tracer):
+            bad = np.asarray(action)
+            if bad.shape != (spec.ACTION_SIZE,):
+                raise ValueError(f"action must have shape [2] (V, ω) for one env, got {bad.shape}")
+            if not np.all(np.isfinite(bad)):
+                raise ValueError(f"non-finite action {bad.tolist()}: V and ω must be finite")
+        return self._step(state, action)
 
     def _spawn(self, key: jax.Array) -> tuple[jax.Array, jax.Array, geometry.Spawn]:
         """(next key, layout, spawn) of a new episode; its sensors are not read here."""
@@ -301,10 +230,6 @@ class NavEnv:
             n_candidates=cfg.spawn_candidates,
         )
         return key_next, layout, spawn
-
-    def _reset(self, key: jax.Array) -> NavState:
-        key_next, layout, spawn = self._spawn(key)
-        return self._first_state(key_next, layout, spawn, self.proximity(spawn.pose, layout))
 
     def _first_state(self, key_next, layout, spawn: geometry.Spawn, prox) -> NavState:
         obs = self.observe(spawn.pose, spawn.goal, prox, jnp.zeros(2, jnp.float32))

@@ -33,7 +33,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from advisor_jax.runner import cyclelog, spec
+from advisor_jax.contract import spec
+from advisor_jax.runner import cyclelog
 from advisor_jax.runner.drive import Command, Drive, to_physical
 from advisor_jax.runner.errors import ObservationError, PolicyError
 from advisor_jax.runner.hardware import MotorDriver, PoseSource, ScanSource

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 from advisor_jax.runner.errors import ObservationError
 
 TICKS_PER_DEGREE = 64

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 from advisor_jax.runner.errors import RunnerError
 from advisor_jax.runner.policy import GOLDEN_TOLERANCE, Layer
 

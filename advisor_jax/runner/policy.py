@@ -1,6 +1,6 @@
 """Loading, verifying and running an exported actor with numpy only (paper §5.3, Fig. 4a).
 
-An export directory (written by ``advisor_jax.export``) holds::
+An export directory (written by ``advisor_jax.deploy.export``) holds::
 
     policy.json   metadata: schema_version, layers, heads, observation/sensor layout,
                   control scaling, env and config, config_hash, weights_sha256, golden_sha256
@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 from advisor_jax.runner.errors import PolicyError
 
 SCHEMA_VERSION = 1

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import envs
-from advisor_jax import cli
-from advisor_jax.evaluate import (
+from advisor_jax.cli import main as cli
+from advisor_jax.evaluation.evaluate import (
     EvalMetrics,
     make_evaluate,
     mean_collision_speed,
@@ -219,7 +219,7 @@ def test_eager_non_finite_action_raises(sim):
 def test_arena_description(sim, arena, h_max, t_o, sensor):
     env = sim.env(arena)
     assert (env.observation_size, env.action_size) == (20, 2)
-    assert env.max_episode_steps == h_max and env.advisor_params.obstacle_threshold == t_o
+    assert env.max_episode_steps == h_max and env.obstacle_threshold == t_o
     meta = json.loads(json.dumps(env.metadata()))
     assert meta["sensor"] == sensor and meta["h_max"] == h_max and meta["T_o"] == t_o
     assert (meta["T_g"], meta["T_c"], meta["dt"], meta["max_range"]) == (0.15, 0.1, 0.05, 1.0)

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from advisor_jax.runner import spec
-from advisor_jax.runner.zones import reduce_to_zones
+from advisor_jax.contract import spec
+from advisor_jax.contract.zones import reduce_to_zones
 from envs import geometry, layouts, mjcf
 
 FIXED = ("training", "validation", "physical")

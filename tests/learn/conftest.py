@@ -16,9 +16,9 @@ import jax
 import numpy as np
 import pytest
 
-from advisor_jax.config import AgentConfig, parse_agent
-from advisor_jax.learner import Learner, make_learner
-from advisor_jax.replay import Transition
+from advisor_jax.agent.config import AgentConfig, parse_agent
+from advisor_jax.agent.learner import Learner, make_learner
+from advisor_jax.agent.replay_buffer import Transition
 
 # Small networks: the rules do not depend on the widths.
 SMALL = dict(

@@ -1,6 +1,6 @@
-"""Unit tests of the rule-based advisor (Algorithm A1, Table A1) in advisor_jax/advisor.py.
+"""Unit tests of the rule-based advisor (Algorithm A1, Table A1) in advisor_jax/agent/advisor.py.
 
-Signs (runner/spec.py): sensor index 0 looks left (+90°), index 7 right (-90°); ω > 0 turns
+Signs (contract/spec.py): sensor index 0 looks left (+90°), index 7 right (-90°); ω > 0 turns
 left; δ > 0 means the goal is on the left. Hand computations use Table A1:
 b_L = [-0.1 … -0.8, 0 × 8], b_R = [-0.8 … -0.1, 0 × 8], d_nd = 0.6, d_dmax = 0.2.
 """
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.advisor import AdvisorParams, advisor_action
+from advisor_jax.agent.advisor import AdvisorParams, advisor_action
 
 advise = jax.jit(advisor_action)
 

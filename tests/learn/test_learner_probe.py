@@ -9,10 +9,10 @@
   γ = 0.9, Q(s0, ·) = γ·1 = 0.9 (bootstrapping) and Q(s1, ·) = 1 (terminal masking; if
   the terminal flag were ignored, Q(s1) = 1/(1 - γ²) ≈ 5.3 and Q(s0) ≈ 4.7).
 
-The loop is the trainer's pattern: sample a batch from the replay buffer, critic_step, and
-actor_step every cfg.delay-th update (lax.cond), all inside one lax.scan. The actor starts
-after WARMUP critic updates (the role of ``learning_starts``): an actor trained on the
-untrained critic can saturate its sigmoid/tanh heads at a corner of the box and stay there.
+The loop runs ``Learner.update``, the one update step training runs (sample a batch, critic
+step, actor step every cfg.delay-th update), inside one lax.scan, after WARMUP critic-only
+updates: an actor trained on the untrained critic can saturate its sigmoid/tanh heads at a
+corner of the box and stay there.
 """
 
 import jax
@@ -20,8 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.config import HParams
-from advisor_jax.replay import Transition, replay_add, replay_init, replay_sample
+from advisor_jax.agent.config import HParams
+from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
 
 A_STAR = np.array([0.7, -0.4], np.float32)
 ADVISOR = np.array([0.2, 0.5], np.float32)  # a poor advisor: AfP must not pull π to it
@@ -35,21 +35,22 @@ def _probe_loop(agent):
     cfg, learner = agent.cfg, agent.learner
 
     def run(state, replay, key, hp):
-        def body(state, inputs):
-            t, key = inputs
+        def critic_only(state, key):
             key_sample, key_critic = jax.random.split(key)
             batch = replay_sample(replay, key_sample, cfg.batch_size)
             state, metrics = learner.critic_step(state, batch, key_critic, hp)
-            state = jax.lax.cond(
-                (t >= WARMUP) & (t % cfg.delay == 0),
-                lambda s: learner.actor_step(s, batch, hp)[0],
-                lambda s: s,
-                state,
-            )
             return state, metrics["loss/critic"]
 
-        steps = (jnp.arange(UPDATES), jax.random.split(key, UPDATES))
-        return jax.lax.scan(body, state, steps)
+        def update(state, inputs):
+            t, key = inputs
+            key_sample, key_critic = jax.random.split(key)
+            state, metrics, _ = learner.update(state, replay, key_sample, key_critic, hp, t)
+            return state, metrics["loss/critic"]
+
+        keys = jax.random.split(key, UPDATES)
+        state, warm = jax.lax.scan(critic_only, state, keys[:WARMUP])
+        state, rest = jax.lax.scan(update, state, (jnp.arange(WARMUP, UPDATES), keys[WARMUP:]))
+        return state, jnp.concatenate([warm, rest])
 
     return jax.jit(run)
 

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.learner import (
+from advisor_jax.agent.update_rules import (
     addpg_actor_targets,
     clip_action,
     critic_losses,

@@ -12,9 +12,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.config import AgentConfig, HParams, parse_agent
-from advisor_jax.learner import make_learner
-from advisor_jax.networks import count_params
+from advisor_jax.agent.config import AgentConfig, HParams, parse_agent
+from advisor_jax.agent.learner import make_learner
+from advisor_jax.agent.networks import count_params
 from tests.compare import assert_same_training
 
 # float32 leaves, as the trainer passes them: Python floats would be a second signature

@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.noise import OUState, ou_init, ou_reset, ou_step
+from advisor_jax.agent.noise import OUState, ou_init, ou_reset, ou_step
 
 
 def test_init_and_one_step_by_hand():

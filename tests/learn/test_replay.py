@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.replay import Transition, replay_add, replay_init, replay_sample
+from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
 
 
 def _numbered(start: int, n: int) -> Transition:

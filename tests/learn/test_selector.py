@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.config import HParams
-from advisor_jax.selector import advisor_probability, expected_max_firing_rate, select_action
+from advisor_jax.agent.config import HParams
+from advisor_jax.agent.selector import advisor_probability, expected_max_firing_rate, select_action
 
 HP = HParams(eps_start=0.85, eps_decay=0.0015, advisor_episodes=250.0)
 

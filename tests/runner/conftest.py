@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from runner_fakes import HIDDEN, asymmetric_actor_params, export_test_actor
 
-from advisor_jax.networks import Actor
+from advisor_jax.agent.networks import make_actor
 from advisor_jax.runner.policy import load_policy
 
 
@@ -23,7 +23,7 @@ def actor_params():
 @pytest.fixture(scope="session")
 def jax_actor():
     """The JIT-compiled JAX actor at full float32 precision (the exporter's reference)."""
-    apply = jax.jit(Actor(HIDDEN).apply)
+    apply = jax.jit(make_actor(HIDDEN).apply)
 
     def run(params, obs):
         with jax.default_matmul_precision("highest"):

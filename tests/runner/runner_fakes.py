@@ -13,8 +13,8 @@ import math
 import jax
 import numpy as np
 
-from advisor_jax.export import export_policy
-from advisor_jax.networks import Actor, init_actor
+from advisor_jax.agent.networks import init_actor, make_actor
+from advisor_jax.deploy.export import export_policy
 from advisor_jax.runner.observation import Pose, Scan
 
 HIDDEN = (48, 48)
@@ -39,7 +39,7 @@ def asymmetric_actor_params(hidden=HIDDEN, seed: int = 0):
 
     def make(key):
         init_key, noise_key = jax.random.split(key)
-        params = init_actor(Actor(hidden), init_key)
+        params = init_actor(make_actor(hidden), init_key)
         leaves, tree = jax.tree_util.tree_flatten(params)
         keys = jax.random.split(noise_key, len(leaves))
         noisy = [x + 0.3 * jax.random.normal(k, x.shape) for x, k in zip(leaves, keys, strict=True)]

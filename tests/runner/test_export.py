@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from runner_fakes import CONFIG_META, ENV_META, export_test_actor, rollout_like_obs
 
-from advisor_jax.export import ExportError, edge_case_observations
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
+from advisor_jax.deploy.export import ExportError
+from advisor_jax.deploy.golden import edge_case_observations
 from advisor_jax.runner.policy import Layer, config_hash, load_policy, mlp_forward
 
 

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 from advisor_jax.runner.errors import PolicyError
 from advisor_jax.runner.policy import config_hash, load_policy
 

@@ -1,7 +1,7 @@
 """Shared, compiled-once fixtures for the training tests.
 
 One tiny ATD3+AfDP configuration is compiled twice per session: as a vmapped population
-(``run.population_functions``, also reused by ``run_training``) and as a single agent.
+(``host_loop.population_functions``, the program ``run_training`` runs) and as a single agent.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.config import HParams, TrainConfig, parse_agent
-from advisor_jax.run import population_functions
-from advisor_jax.sweep import agent_keys, build_population
+from advisor_jax.agent.config import HParams, TrainConfig, parse_agent
+from advisor_jax.training.host_loop import population_functions
+from advisor_jax.training.population import agent_keys, build_population
 
 TINY = TrainConfig(
     agent=parse_agent(
@@ -52,26 +52,32 @@ def run_chunks(init_fn, chunk_fn, key, hp, n_chunks=N_CHUNKS, state=None, first=
 
 
 @pytest.fixture(scope="session")
-def population():
+def tiny_functions():
+    """(trainer, jit(vmap(init)), jit(vmap(chunk))) of TINY, compiled once per session."""
+    return population_functions(TINY)
+
+
+@pytest.fixture(scope="session")
+def population(tiny_functions):
     """The final state of the 5-agent vmapped run, as numpy."""
-    trainer, init_fn, chunk_fn = population_functions(TINY)
+    trainer, init_fn, chunk_fn = tiny_functions
     hp, seeds = _population()
     state = run_chunks(init_fn, chunk_fn, agent_keys(seeds), hp)
     return jax.device_get(state), hp, seeds
 
 
 @pytest.fixture(scope="session")
-def initial_state(population):
+def initial_state(population, tiny_functions):
     """The population's state before training (what ``population`` started from)."""
-    _, init_fn, _ = population_functions(TINY)
+    _, init_fn, _ = tiny_functions
     return jax.device_get(init_fn(agent_keys(population[2])))
 
 
 @pytest.fixture(scope="session")
-def single_runs(population):
+def single_runs(population, tiny_functions):
     """The healthy agents run one by one with the unvmapped functions."""
     _, hp, seeds = population
-    trainer = population_functions(TINY)[0]
+    trainer = tiny_functions[0]
     init_fn, chunk_fn = jax.jit(trainer.init), jax.jit(trainer.chunk)
     out = []
     for i in range(GOOD):

@@ -13,11 +13,11 @@ import optax
 import pytest
 
 import envs
-from advisor_jax.advisor import advisor_action
-from advisor_jax.closed_loop import run_closed_loop
-from advisor_jax.export import export_policy
-from advisor_jax.export_cli import rollout_observations
-from advisor_jax.networks import Actor, init_actor
+from advisor_jax.agent.advisor import advisor_action, arena_advisor
+from advisor_jax.agent.networks import init_actor, make_actor
+from advisor_jax.deploy.export import export_policy
+from advisor_jax.evaluation.closed_loop import run_closed_loop
+from advisor_jax.evaluation.evaluate import rollout_observations
 from advisor_jax.runner.policy import load_policy
 
 HIDDEN = (32, 32)
@@ -26,9 +26,9 @@ HIDDEN = (32, 32)
 def clone_advisor(env, key, steps=600):
     """Behaviour cloning of the advisor: observations from advisor rollouts, MSE fit."""
     advisor = lambda p, o: advisor_action(o, p)  # noqa: E731
-    obs = rollout_observations(env, advisor, env.advisor_params, key, n_envs=64, steps=60)
-    targets = jax.vmap(advisor_action, in_axes=(0, None))(jnp.asarray(obs), env.advisor_params)
-    actor = Actor(hidden=HIDDEN)
+    obs = rollout_observations(env, advisor, arena_advisor(env), key, n_envs=64, steps=60)
+    targets = jax.vmap(advisor_action, in_axes=(0, None))(jnp.asarray(obs), arena_advisor(env))
+    actor = make_actor(HIDDEN)
     params = init_actor(actor, key)
     opt = optax.adam(3e-3)
 

@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 import envs
-from advisor_jax.run import population_functions
-from advisor_jax.sweep import agent_keys
+from advisor_jax.training.population import agent_keys
 from tests.compare import assert_same_training
 from tests.train.conftest import GOOD, TINY, agent_slice, run_chunks
 
@@ -33,14 +32,14 @@ def test_vmapped_population_equals_single_runs(population, initial_state, single
     _check_against_single_runs(population[0], initial_state, single_runs)
 
 
-def test_the_check_catches_a_broken_vmap(population, initial_state, single_runs):
+def test_the_check_catches_a_broken_vmap(population, initial_state, single_runs, tiny_functions):
     """The comparison above fails for the two ways a vmap can mix agents up.
 
     Swapped hyperparameters (agents 0 and 2 share seed 0 and differ only in β) leave the
     discrete trajectory of these tiny runs identical, so only the parameter bound can catch
     them; a reused key changes the episodes themselves.
     """
-    _, init_fn, chunk_fn = population_functions(TINY)
+    _, init_fn, chunk_fn = tiny_functions
     _, hp, seeds = population
     swapped = jax.tree_util.tree_map(lambda x: x[np.array([2, 1, 0, 3, 4])], hp)
     keys = agent_keys(seeds)
@@ -89,12 +88,12 @@ def test_episode_logs_are_consistent(population):
         assert np.all(np.isnan(log.collision_speed[~collided]))
 
 
-def test_frozen_agent_parameters_do_not_move(population):
+def test_frozen_agent_parameters_do_not_move(population, tiny_functions):
     """After its N_total-th episode an agent is frozen: one more chunk changes nothing."""
     import jax.numpy as jnp
 
     state, hp, _ = population
-    _, _, chunk_fn = population_functions(TINY)
+    _, _, chunk_fn = tiny_functions
     before = jax.device_get(state.learner)
     after, _ = chunk_fn(jax.tree_util.tree_map(jnp.asarray, state), hp, jnp.int32(10_000))
     after = jax.device_get(after)

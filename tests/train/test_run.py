@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax import checkpoint, reporting
-from advisor_jax.config import AgentConfig, HParams, parse_agent, preset, validate_hparams
-from advisor_jax.evaluation_runs import evaluate_population
-from advisor_jax.run import population_functions, run_training
-from advisor_jax.sweep import agent_keys, build_population, parse_assignments
+from advisor_jax.agent.config import AgentConfig, HParams, parse_agent, preset, validate_hparams
+from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
+from advisor_jax.training import checkpoint, reporting
+from advisor_jax.training.host_loop import population_functions, run_training
+from advisor_jax.training.population import agent_keys, build_population, parse_assignments
 from tests.train.conftest import N_CHUNKS, TINY, agent_slice, run_chunks
 
 QUICK = dataclasses.replace(preset("quick")[0], episodes=25, chunk_steps=500)
@@ -39,15 +39,19 @@ def finished_run(tmp_path_factory):
     return out, summary
 
 
-def test_short_cpu_run_beats_its_untrained_actor(finished_run):
+@pytest.fixture(scope="module")
+def quick_evaluators():
+    """The run's evaluation (training arena, EVAL_EPISODES), compiled once for these tests."""
+    return {"training": population_evaluator("training", EVAL_EPISODES, QUICK.agent.actor_hidden)}
+
+
+def test_short_cpu_run_beats_its_untrained_actor(finished_run, quick_evaluators):
     _, summary = finished_run
     _, init_fn, _ = population_functions(QUICK)
     untrained = init_fn(agent_keys([0, 1]))  # the same initial actors, before training
     before = evaluate_population(
+        quick_evaluators,
         untrained.learner.actor,
-        QUICK.agent.actor_hidden,
-        arenas=("training",),
-        episodes=EVAL_EPISODES,
         key=jax.random.PRNGKey(10_000),  # the run's evaluation episodes (seed 0)
     )["training"]["success"]
     after = summary["evaluation"]["training"]["success"]
@@ -84,21 +88,15 @@ def test_chunk_line_is_strict_json_without_updates():
     json.dumps(line, allow_nan=False)
 
 
-def test_saved_parameters_load_and_evaluate_identically(finished_run):
+def test_saved_parameters_load_and_evaluate_identically(finished_run, quick_evaluators):
     out, summary = finished_run
     params = checkpoint.load_tree(out / "params")
-    again = evaluate_population(
-        params["actor"],
-        QUICK.agent.actor_hidden,
-        arenas=("training",),
-        episodes=EVAL_EPISODES,
-        key=jax.random.PRNGKey(10_000),
-    )
+    again = evaluate_population(quick_evaluators, params["actor"], key=jax.random.PRNGKey(10_000))
     assert again["training"]["success"] == summary["evaluation"]["training"]["success"]
 
 
 def test_export_cli_writes_a_policy_the_runner_accepts(finished_run, tmp_path):
-    from advisor_jax.cli import main
+    from advisor_jax.cli.main import main
     from advisor_jax.runner.policy import load_policy
 
     out, _ = finished_run
@@ -118,10 +116,10 @@ def test_existing_run_needs_resume(finished_run):
         run_training(QUICK, HParams(), {}, [0], out, progress=False)
 
 
-def test_checkpoint_resume_equals_uninterrupted(population, tmp_path):
+def test_checkpoint_resume_equals_uninterrupted(population, tiny_functions, tmp_path):
     """One chunk, checkpoint, restore, the remaining chunks == the straight run."""
     state_ref, hp, seeds = population
-    _, init_fn, chunk_fn = population_functions(TINY)
+    _, init_fn, chunk_fn = tiny_functions
     keys = agent_keys(seeds)
     state = run_chunks(init_fn, chunk_fn, keys, hp, n_chunks=1)
     checkpoint.save_step(tmp_path, TINY.chunk_steps, state)

@@ -8,12 +8,12 @@ Eq. (1), per step and per environment (Alg. 1 steps 11-12; Alg. A2 steps 11-14):
     ε = clip(ε, 0, 1)
     a = a_adv with probability ε, else a_act
 
-N is the agent's completed-episode count (DESIGN.md), so the first episode has N = 0 and
-the advisor still takes part while N = N_T. The clip keeps ε a probability when ε_st - bN
-becomes negative for large N (the paper's b = 0.15 read per episode), and when a sweep
-that skipped ``config.validate_hparams`` passes ε_st > 1 or b < 0. For ATD3 the trainer
-passes Q = min(Q1, Q2) (Alg. A2 steps 11-12; ``Learner.q_select`` does that). When AfD is
-off the trainer never calls this.
+N is the agent's completed-episode count (docs/architecture.md, "Paper readings" R14), so
+the first episode has N = 0 and the advisor still takes part while N = N_T. The clip keeps
+ε a probability when ε_st - bN becomes negative for large N (the paper's b = 0.15 read per
+episode), and when a sweep that skipped ``config.validate_hparams`` passes ε_st > 1 or
+b < 0. For ATD3 the trainer passes Q = min(Q1, Q2) (Alg. A2 steps 11-12;
+``Learner.q_select`` does that). When AfD is off the trainer never calls this.
 
 Eq. (11), the actor's expected maximum firing rate, is the moving average over a window of
 w episodes of the upper bound bN + 1 - ε_st (Appendix D)::
@@ -29,7 +29,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from advisor_jax.config import HParams
+from advisor_jax.agent.config import HParams
 
 
 def advisor_probability(

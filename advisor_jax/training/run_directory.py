@@ -8,8 +8,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from advisor_jax import checkpoint
-from advisor_jax.config import TrainConfig, train_config_from_dict
+from advisor_jax.agent.config import TrainConfig, train_config_from_dict
+from advisor_jax.training import checkpoint
 
 
 def load_run(run_dir: str | Path) -> tuple[TrainConfig, dict]:

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import tyro
 
-from advisor_jax.config import HPARAM_NAMES
+from advisor_jax.agent.config import HPARAM_NAMES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,35 +39,21 @@ class ExportArgs:
     """Seed of the golden rollouts."""
 
 
-def rollout_observations(env, policy_apply, params, key, n_envs: int, steps: int):
-    """[n_envs · steps, 20] observations met by the deterministic policy (auto-reset on)."""
-    import jax
-    import numpy as np
-
-    def body(states, _):
-        actions = jax.vmap(policy_apply, in_axes=(None, 0))(params, states.obs)
-        return jax.vmap(env.step)(states, actions), states.obs
-
-    states = jax.vmap(env.reset)(jax.random.split(key, n_envs))
-    _, obs = jax.jit(lambda s: jax.lax.scan(body, s, None, length=steps))(states)
-    return np.asarray(obs).reshape(-1, obs.shape[-1])
-
-
 def export_command(args: ExportArgs) -> dict:
     """Entry point of ``advisor-jax export``; returns the written policy.json dict."""
     import jax
 
     import envs
-    from advisor_jax.export import export_policy
-    from advisor_jax.networks import Actor
-    from advisor_jax.runs import load_actor
+    from advisor_jax.agent.networks import make_actor
+    from advisor_jax.deploy.export import export_policy
+    from advisor_jax.evaluation.evaluate import rollout_observations
+    from advisor_jax.training.run_directory import load_actor
 
     if args.golden_envs <= 0 or args.golden_steps <= 0:
         raise ValueError("--golden-envs and --golden-steps must be positive")
     cfg, row, actor = load_actor(args.source, args.agent)
-    overrides = {"max_episode_steps": cfg.max_episode_steps} if cfg.max_episode_steps else {}
-    env = envs.make_env(cfg.arena, **overrides)
-    policy_apply = Actor(hidden=cfg.agent.actor_hidden).apply
+    env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)
+    policy_apply = make_actor(cfg.agent.actor_hidden).apply
     obs = rollout_observations(
         env, policy_apply, actor, jax.random.PRNGKey(args.seed), args.golden_envs, args.golden_steps
     )

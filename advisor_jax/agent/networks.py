@@ -22,7 +22,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 
 he_init = nn.initializers.he_normal()
 
@@ -73,6 +73,14 @@ class Critic(nn.Module):
         for i, width in enumerate(self.hidden[1:], start=1):
             x = nn.relu(nn.Dense(width, kernel_init=he_init, name=f"hidden_{i}")(x))
         return nn.Dense(1, kernel_init=he_init, name="q")(x)[..., 0]
+
+
+def make_actor(hidden: Sequence[int]) -> Actor:
+    """The one policy factory: π(s; φ) with these hidden widths (``AgentConfig.actor_hidden``).
+
+    Training, evaluation, export and the CLI all build their actor here, so the widths are
+    always a tuple of ints (a list would make another, unequal module)."""
+    return Actor(hidden=tuple(int(w) for w in hidden))
 
 
 def count_params(params) -> int:

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import functools
 import json
 import time
 from collections.abc import Mapping, Sequence
@@ -32,12 +31,13 @@ import jax.numpy as jnp
 import numpy as np
 from rich.console import Console
 
-from advisor_jax import __version__, checkpoint, reporting
-from advisor_jax.config import HParams, TrainConfig
-from advisor_jax.evaluation_runs import evaluate_population
+from advisor_jax import __version__
+from advisor_jax.agent.config import HParams, TrainConfig
+from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.sweep import agent_keys, build_population
-from advisor_jax.train import make_train
+from advisor_jax.training import checkpoint, reporting
+from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.train import make_train
 
 
 def run_training(
@@ -138,12 +138,15 @@ def run_training(
     reporting.write_metrics(out_dir, metrics, agents)
     evaluation = {}
     if eval_episodes:
+        evaluators = {
+            arena: population_evaluator(
+                arena, eval_episodes, cfg.agent.actor_hidden, cfg.max_episode_steps
+            )
+            for arena in eval_arenas
+        }
         evaluation = evaluate_population(
+            evaluators,
             state.learner.actor,
-            cfg.agent.actor_hidden,
-            arenas=eval_arenas,
-            episodes=eval_episodes,
-            max_episode_steps=cfg.max_episode_steps,
             key=jax.random.PRNGKey(10_000 + int(seeds[0])),
             diverged=np.asarray(state.diverged),
         )
@@ -165,9 +168,11 @@ def run_training(
     return summary
 
 
-@functools.lru_cache(maxsize=8)
 def population_functions(cfg: TrainConfig):
-    """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``, compiled once per process."""
+    """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
+
+    Each call builds new jitted functions (jit compiles on their first call); callers that
+    train several populations of one config keep and reuse them."""
     trainer = make_train(cfg)
     init_fn = jax.jit(jax.vmap(trainer.init))
     chunk_fn = jax.jit(jax.vmap(trainer.chunk, in_axes=(0, 0, None)), donate_argnums=0)

@@ -4,7 +4,7 @@ Every transition stores the advisor's action a_adv next to the executed action, 
 AfP (Alg. 2 steps 11-13) compares Q(s, a_adv) with Q(s, â) at update time, whatever the
 selector executed. ``terminal`` is 1.0 only for goal and collision (no bootstrap); a
 timeout is a truncation and is stored with ``terminal = 0.0`` so the critic bootstraps
-(DESIGN.md "Replay").
+(docs/architecture.md, "Replay").
 
 Outline::
 
@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 
 
 @struct.dataclass

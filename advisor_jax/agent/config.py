@@ -1,6 +1,6 @@
 """Configuration: static shapes and switches vs. vmappable scalar hyperparameters.
 
-Two kinds of configuration (STYLE.md, habit 2):
+Two kinds of configuration (docs/architecture.md, "Configuration"):
 
 * ``AgentConfig`` / ``TrainConfig`` are frozen dataclasses of *static* values: anything that
   fixes a shape, a loop length or a code path (network sizes, buffer and batch sizes, the
@@ -10,11 +10,11 @@ Two kinds of configuration (STYLE.md, habit 2):
   is one ``vmap`` over a stacked ``HParams`` and one compile.
 
 Defaults are the paper's simulation column (Tables A2, A4). Two readings of the paper are
-ours (DESIGN.md): the decay b = 0.15 of Table A2 cannot be per episode (ε_st - bN would be
-negative after six episodes), so the default is 0.15 per 100 episodes, b = 0.0015; and the
-Ornstein–Uhlenbeck parameters, which the paper does not give, default to θ = 0.15, σ = 0.1
-(stationary std ≈ 0.19 in normalised action units; σ = 0.2 took the advisor from 53 % to
-33 % success in the training arena, mostly by collisions).
+ours (docs/architecture.md, "Paper readings"): the decay b = 0.15 of Table A2 cannot be per
+episode (ε_st - bN would be negative after six episodes), so the default is 0.15 per 100
+episodes, b = 0.0015; and the Ornstein–Uhlenbeck parameters, which the paper does not
+give, default to θ = 0.15, σ = 0.1 (stationary std ≈ 0.19 in normalised action units; a
+larger σ made the noisy advisor collide more; README, "How we read the paper").
 """
 
 from __future__ import annotations

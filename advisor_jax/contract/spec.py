@@ -52,7 +52,7 @@ ACTION_NAMES = ("V", "omega")
 ACTION_LOW = (0.0, -1.0)
 ACTION_HIGH = (1.0, 1.0)
 
-# Defaults shared by every arena (paper Table A1 / A3; DESIGN.md "Environment").
+# Defaults shared by every arena (paper Table A1 / A3; docs/architecture.md, "Environment").
 V_MAX = 1.0  # m/s, Table A1
 CONTROL_DT = 0.05  # s, V-REP's default simulation step
 MAX_RANGE = 1.0  # m, sensor cutoff; "no hit" reads this

@@ -11,12 +11,13 @@ Outline (per observation; no Python control flow on traced values)::
         ω = ½ m3 (b_R - b_L)·det                      # sign: see below
     V = clip(V, 0, 1);  ω = clip(ω, -1, 1)
 
-Sign conventions, fixed by behaviour (DESIGN.md): ω > 0 turns left (counter-clockwise),
-δ > 0 means the goal is on the left, and sensor 1 looks left (``runner/spec.py``). Then
-goal-on-the-left ⇒ ω = tanh(m1 δ) > 0 ⇒ turn left, as printed. The printed Braitenberg line
-ω = ½ m3 (b_L - b_R)·det comes from V-REP's wheel-speed Braitenberg demo, where it is the
-*clockwise* rate v_L - v_R; with sensor 1 on the left, an obstacle there must make the robot
-turn right, so in our counter-clockwise convention the rate is ½ m3 (b_R - b_L)·det.
+Sign conventions, fixed by behaviour (docs/architecture.md, "Paper readings" R4): ω > 0
+turns left (counter-clockwise), δ > 0 means the goal is on the left, and sensor 1 looks
+left (``contract/spec.py``). Then goal-on-the-left ⇒ ω = tanh(m1 δ) > 0 ⇒ turn left, as
+printed. The printed Braitenberg line ω = ½ m3 (b_L - b_R)·det comes from V-REP's
+wheel-speed Braitenberg demo, where it is the *clockwise* rate v_L - v_R; with sensor 1 on
+the left, an obstacle there must make the robot turn right, so in our counter-clockwise
+convention the rate is ½ m3 (b_R - b_L)·det.
 The tests pin both behaviours.
 
 Table A1's arrays have 15 entries although n_sen = 16; the text says the rear sensors get
@@ -29,7 +30,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from flax import struct
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 
 _FRONT_LEFT = (-0.1, -0.2, -0.3, -0.4, -0.5, -0.6, -0.7, -0.8)
 
@@ -53,11 +54,17 @@ class AdvisorParams:
     m3: float = 1.0
 
 
+def arena_advisor(env) -> AdvisorParams:
+    """Table A1 advisor with the arena's obstacle threshold T_o (``env.obstacle_threshold``:
+    0.5 m in simulation, 0.6 m in the physical arena)."""
+    return AdvisorParams(obstacle_threshold=float(env.obstacle_threshold))
+
+
 def advisor_action(obs: jnp.ndarray, params: AdvisorParams | None = None) -> jnp.ndarray:
     """Advisor action (V, ω) in normalised action units for one observation.
 
     Args:
-      obs: [20] observation laid out as in ``runner/spec.py``.
+      obs: [20] observation laid out as in ``advisor_jax/contract/spec.py``.
       params: advisor parameters; Table A1 simulation values by default.
 
     Returns:

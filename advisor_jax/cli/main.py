@@ -28,10 +28,10 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from advisor_jax.export_cli import ExportArgs, export_command
+from advisor_jax.cli.export import ExportArgs, export_command
+from advisor_jax.cli.train import TrainArgs, train_command
 from advisor_jax.fileio import atomic_write_text
 from advisor_jax.runner.errors import RunnerError
-from advisor_jax.train_cli import TrainArgs, train_command
 
 
 def _envs():
@@ -64,47 +64,6 @@ def arena(
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
 
 
-def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
-    """``(policy_apply, params)`` for a policy spec; ``policy_apply(params, obs) -> action``.
-
-    Specs: ``advisor`` (Algorithm A1 with the arena's T_o); ``RUN_DIR[:AGENT]``, the final
-    actor of agent AGENT (default 0) of a training run; ``EXPORT_DIR``, an exported policy
-    (verified like the car runner does).
-    """
-    if policy == "advisor":
-        from advisor_jax.advisor import advisor_action
-
-        return (lambda params, obs: advisor_action(obs, params)), env.advisor_params
-    from advisor_jax.networks import Actor
-
-    path, sep, suffix = policy.rpartition(":")
-    has_index = bool(sep) and suffix.isdigit()
-    index = int(suffix) if has_index else 0
-    directory = Path(path if has_index else policy)
-    if (directory / "policy.json").is_file():
-        from advisor_jax.closed_loop import actor_params_from_policy
-        from advisor_jax.runner.policy import load_policy
-
-        loaded = load_policy(directory)
-        omega = env.config.omega_max
-        if abs(loaded.omega_max - omega) > 1e-9:
-            raise ValueError(
-                f"{directory} was exported with omega_max={loaded.omega_max:g} rad/s but the "
-                f"arena uses {omega:g}"
-            )
-        params, hidden = actor_params_from_policy(loaded)
-        return Actor(hidden=hidden).apply, params
-    if (directory / "run.json").is_file():
-        from advisor_jax.runs import load_actor
-
-        cfg, _, params = load_actor(directory, index)
-        return Actor(hidden=cfg.agent.actor_hidden).apply, params
-    raise ValueError(
-        f"unknown policy {policy!r}: use 'advisor', a training run directory RUN[:AGENT] "
-        "or an export directory (with policy.json)"
-    )
-
-
 def evaluate(
     policy: str = "advisor",
     arena: str = "training",
@@ -130,7 +89,8 @@ def evaluate(
     if episodes <= 0:
         raise ValueError(f"--episodes must be a positive integer, got {episodes}")
     env = _envs().make_env(arena)
-    from advisor_jax.evaluate import make_evaluate, summary
+    from advisor_jax.cli.policy_spec import resolve_policy
+    from advisor_jax.evaluation.evaluate import make_evaluate, summary
 
     apply, params = resolve_policy(policy, env)
     evaluate_fn = jax.jit(make_evaluate(env, apply, episodes))

@@ -21,8 +21,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 import envs
+from advisor_jax.agent.selector import expected_max_firing_rate
 from advisor_jax.fileio import atomic_write_bytes, atomic_write_npz
-from advisor_jax.selector import expected_max_firing_rate
 
 FIRING_WINDOW = 30  # w of Eq. (11), as in Fig. 10
 METRIC_NAMES = (

@@ -1,4 +1,6 @@
-"""Export a trained actor for the numpy-only car runner (DESIGN.md "Deployment"; paper §5.3).
+"""Export a trained actor for the numpy-only car runner (paper §5.3), and its inverse.
+
+docs/architecture.md, "Deployment".
 
 ``export_policy`` writes an export directory that ``advisor_jax.runner.policy.load_policy``
 reads and verifies on the car::
@@ -13,7 +15,7 @@ Outline::
 
     arrays   = float32 copy of the actor params, checked against actor_hidden
     obs      = caller's rollout observations ++ edge cases ++ seeded random fill to 256 rows
-    actions  = jax.jit(Actor(hidden).apply)(arrays, obs)   on CPU, "highest" matmul precision
+    actions  = jax.jit(make_actor(hidden).apply)(arrays, obs)   on CPU, "highest" matmul precision
                (a GPU's default TF32 matmuls would miss the runner's 1e-5 check)
     verify   numpy MLP == actions (1e-5); ONNX via onnxruntime == actions (1e-5) if asked
     write    each file atomically (temp file in out_dir, fsync, os.replace); policy.json last
@@ -39,19 +41,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax import __version__
+from advisor_jax.agent.networks import make_actor
+from advisor_jax.contract import spec
+from advisor_jax.deploy.golden import ExportError, golden_observations
 from advisor_jax.fileio import atomic_write_bytes
-from advisor_jax.networks import Actor
 from advisor_jax.runner import policy as rp
-from advisor_jax.runner import spec
 from advisor_jax.runner.errors import RunnerError
 from advisor_jax.runner.onnx_model import build_onnx
 
-MIN_GOLDEN = 256
 ONNX_OPSET = 13  # the Jetson's onnxruntime is old
-
-
-class ExportError(ValueError):
-    """Bad export inputs, a missing optional dependency, or a failed parity check."""
 
 
 def export_policy(
@@ -67,7 +65,7 @@ def export_policy(
     """Writes policy.npz, golden.npz, [policy.onnx,] policy.json into ``out_dir``.
 
     Args:
-      actor_params: flax params of ``Actor(actor_hidden)`` (with or without the "params" key).
+      actor_params: flax params of ``make_actor(actor_hidden)`` (with or without the "params" key).
       out_dir: directory to create or overwrite.
       actor_hidden: hidden widths, e.g. (600, 300).
       env_meta: ``NavEnv.metadata()``; needs ``omega_max`` and ``bounds``.
@@ -83,7 +81,7 @@ def export_policy(
     env = _jsonable(env_meta, "env_meta")
     config = _jsonable(config_meta, "config_meta")
     control, sensors, observation = _describe(env)
-    obs = _golden_observations(golden_obs, observation["max_range"])
+    obs = golden_observations(golden_obs, observation["max_range"])
     actions = _jax_actions(layers, hidden, obs)
     golden = {"obs": obs, "actions": actions}
     try:
@@ -156,52 +154,6 @@ def export_policy(
     return meta
 
 
-def edge_case_observations(max_range: float = spec.MAX_RANGE) -> np.ndarray:
-    """[K, 20] float32 corner cases: saturated/empty zones, δ = ±π, d = 0 and far, fast."""
-    rows = []
-
-    def row(p, delta=0.3, d=2.0, vx=0.0, vy=0.0):
-        rows.append(list(np.broadcast_to(np.asarray(p, np.float64), (16,))) + [delta, d, vx, vy])
-
-    pi_below = float(np.nextafter(np.float32(math.pi), np.float32(0)))
-    row(max_range)  # nothing in sight
-    row(0.0)  # touching everywhere
-    for delta in (-math.pi, math.pi, pi_below, -pi_below, 0.0, math.pi / 2, -math.pi / 2):
-        row(max_range, delta=delta, d=3.0)
-    for d in (0.0, 1e-3, 10.0, 50.0):
-        row(max_range, d=d)
-    for vx, vy in ((5.0, 5.0), (-5.0, 5.0), (10.0, -10.0), (-20.0, 0.0), (0.0, 20.0)):
-        row(0.5 * max_range, delta=-1.0, vx=vx, vy=vy)
-    for k in range(16):  # one close zone at a time: catches a permuted/transposed layout
-        p = np.full(16, max_range)
-        p[k] = 0.05 * max_range
-        row(p, delta=math.pi * (k / 8.0 - 1.0), d=0.5 + 0.25 * k)
-    left = np.where(np.arange(16) < 8, 0.1, max_range) * np.linspace(1.0, 0.5, 16)
-    row(left, delta=pi_below, d=10.0, vx=-3.0, vy=2.0)  # mixed
-    row(left[::-1], delta=-math.pi, d=0.0, vx=3.0, vy=-2.0)
-    return np.asarray(rows, dtype=np.float32)
-
-
-def _rollout_like(n: int, max_range: float, key: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(key)
-    p = np.minimum(rng.uniform(0.0, 1.4 * max_range, (n, 16)), max_range)
-    delta = rng.uniform(-math.pi, math.pi, (n, 1))
-    d = rng.uniform(0.0, 7.0, (n, 1))
-    v = rng.normal(0.0, 0.5, (n, 2))
-    return np.concatenate([p, delta, d, v], axis=1).astype(np.float32)
-
-
-def _golden_observations(golden_obs: Any, max_range: float) -> np.ndarray:
-    obs = np.asarray(golden_obs, dtype=np.float32)
-    if obs.ndim != 2 or obs.shape[1] != spec.OBS_SIZE:
-        raise ExportError(f"golden_obs must have shape [N, {spec.OBS_SIZE}], got {list(obs.shape)}")
-    if not np.isfinite(obs).all():
-        raise ExportError("golden_obs contains NaN or inf")
-    obs = np.concatenate([obs, edge_case_observations(max_range)])
-    fill = max(0, MIN_GOLDEN - len(obs))
-    return np.concatenate([obs, _rollout_like(fill, max_range)]) if fill else obs
-
-
 def _actor_layers(actor_params: Mapping, hidden: tuple[int, ...]) -> tuple[rp.Layer, ...]:
     if not hidden or any(w <= 0 for w in hidden):
         raise ExportError(f"actor_hidden must be positive widths, got {hidden}")
@@ -238,7 +190,7 @@ def _jax_actions(
         device = jax.devices("cpu")[0]
     except RuntimeError:  # JAX_PLATFORMS without cpu: full precision still applies
         device = jax.devices()[0]
-    apply = jax.jit(Actor(hidden).apply)
+    apply = jax.jit(make_actor(hidden).apply)
     with jax.default_matmul_precision("highest"):
         params, x = jax.device_put((params, jnp.asarray(obs)), device)
         actions = np.asarray(jax.device_get(apply(params, x)), dtype=np.float32)
@@ -346,3 +298,13 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return buf.getvalue()
+
+
+def actor_params_from_policy(policy: rp.Policy) -> tuple[dict, tuple[int, ...]]:
+    """The inverse of ``export_policy``: flax params and hidden widths of a loaded export."""
+    params = {
+        layer.name: {"kernel": jnp.asarray(layer.kernel), "bias": jnp.asarray(layer.bias)}
+        for layer in policy.layers
+    }
+    hidden = tuple(int(layer.kernel.shape[1]) for layer in policy.layers[:-1])
+    return {"params": params}, hidden

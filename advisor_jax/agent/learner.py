@@ -1,9 +1,10 @@
 """Update rules of DDPG, ADDPG (Alg. 2), TD3 and ATD3 (Alg. A3), with the advisor (AfP).
 
-One implementation, configured by ``AgentConfig`` (``algo``, ``advisor_policy``). The
-trainer owns the schedule: per sampled batch B it calls ``critic_step`` and then, every
-``cfg.delay``-th update (every update for the DDPG family), ``actor_step`` on the same
-batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3 steps 9-22)::
+One implementation, configured by ``AgentConfig`` (``algo``, ``advisor_policy``).
+``Learner.update`` is the one update step that training, the learner benchmark and the
+tests run: it samples a batch B from the replay buffer, calls ``critic_step`` and then,
+every ``cfg.delay``-th update (every update for the DDPG family), ``actor_step`` on the
+same batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3 steps 9-22)::
 
     critic_step(B):                                     # Alg. 2 steps 7-8, Alg. A3 10-14
         A' = π^T(S')                                    # DDPG / ADDPG, Eq. (4)
@@ -54,12 +55,19 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from advisor_jax.config import AgentConfig, HParams
-from advisor_jax.networks import Actor, Critic, apply_critics, init_actor, init_critics
-from advisor_jax.replay import Transition
-from advisor_jax.runner import spec
+from advisor_jax.agent.config import AgentConfig, HParams
+from advisor_jax.agent.networks import Critic, apply_critics, init_actor, init_critics, make_actor
+from advisor_jax.agent.replay_buffer import ReplayState, Transition, replay_sample
+from advisor_jax.agent.update_rules import (
+    addpg_actor_targets,
+    critic_losses,
+    critic_targets,
+    dpg_actor_loss,
+    mse_actor_loss,
+    smoothed_target_actions,
+    soft_update,
+)
 
-QFn = Callable[[jax.Array, jax.Array], jax.Array]  # (obs [..., 20], action [..., 2]) -> Q [...]
 Metrics = dict[str, jax.Array]
 
 
@@ -86,95 +94,9 @@ class Learner(NamedTuple):
     actor_step: Callable[..., tuple[Any, Metrics]]
     """(state, batch, hp, episode=0) -> (state, metrics): one actor update and the soft update
     of all targets; ``episode`` (episodes completed) gates the AfP replacement by N_P."""
-
-
-# Pure pieces ----------------------------------------------------------------------------
-
-
-def soft_update(target: Any, online: Any, tau: jax.Array | float) -> Any:
-    """Eqs. (6), (7): target ← τ·online + (1 - τ)·target, leaf by leaf."""
-    return jax.tree.map(lambda t, o: tau * o + (1.0 - tau) * t, target, online)
-
-
-def clip_action(action: jax.Array) -> jax.Array:
-    """Clips ``[..., 2]`` actions to the box V ∈ [0, 1], ω ∈ [-1, 1] (``runner/spec.py``)."""
-    low = jnp.asarray(spec.ACTION_LOW, action.dtype)
-    high = jnp.asarray(spec.ACTION_HIGH, action.dtype)
-    return jnp.clip(action, low, high)
-
-
-def smoothed_target_actions(
-    key: jax.Array,
-    target_actions: jax.Array,
-    sigma: jax.Array | float,
-    noise_clip: jax.Array | float,
-) -> jax.Array:
-    """TD3 target smoothing (Alg. A3 steps 10-11): clip(π^T(S') + clip(σ̄ξ, -c, c), box)."""
-    noise = sigma * jax.random.normal(key, target_actions.shape, target_actions.dtype)
-    return clip_action(target_actions + jnp.clip(noise, -noise_clip, noise_clip))
-
-
-def critic_targets(
-    reward: jax.Array, terminal: jax.Array, next_q: jax.Array, gamma: jax.Array | float
-) -> jax.Array:
-    """Q̂ = R + γ(1 - terminal)·min_k next_q[k] (Eq. 4; Alg. A3 step 12).
-
-    Args:
-      reward, terminal: [n].
-      next_q: [n_critics, n] target critics at (S', A'); the min over one critic is itself.
-    """
-    return reward + gamma * (1.0 - terminal) * jnp.min(next_q, axis=0)
-
-
-def critic_losses(q: jax.Array, targets: jax.Array) -> jax.Array:
-    """Per-critic TD loss (1/n) Σ_i (Q̂_i - Q_k(s_i, a_i))²: q [n_critics, n] → [n_critics]."""
-    return jnp.mean(jnp.square(jax.lax.stop_gradient(targets) - q), axis=-1)
-
-
-def addpg_actor_targets(
-    q_fn: QFn,
-    obs: jax.Array,
-    actor_actions: jax.Array,
-    advisor_actions: jax.Array,
-    beta: jax.Array | float,
-    advisor_policy: bool,
-    replace_allowed: jax.Array | bool = True,
-) -> tuple[jax.Array, jax.Array]:
-    """Â of Eq. (2) with the AfP replacement (Alg. 2 steps 9-13): ``(a_hat, replaced)``.
-
-    Args:
-      q_fn: Q_1 with its params bound, (obs [n, 20], action [n, 2]) -> [n].
-      obs: [n, 20]; actor_actions: [n, 2] = π(S); advisor_actions: [n, 2] = A_adv.
-      beta: β of Eq. (2).
-      advisor_policy: static; AfP on (steps 11-13) or off (plain ADDPG).
-      replace_allowed: traced bool; False turns the replacement off for this update (our
-        ``advisor_policy_episodes`` N_P; the paper always replaces).
-
-    Returns:
-      a_hat [n, 2] (no gradient flows through it) and replaced [n] bool, the samples where
-      Q(s_i, a_adv,i) > Q(s_i, â_i) and â_i was replaced by a_adv,i (all False without AfP).
-    """
-    actor_actions = jax.lax.stop_gradient(actor_actions)
-    # Samples are independent, so the gradient of the batch sum is the per-sample ∇_a Q.
-    grad_q = jax.grad(lambda a: jnp.sum(q_fn(obs, a)))(actor_actions)  # [n, 2]
-    a_hat = actor_actions + beta * grad_q
-    if not advisor_policy:
-        return a_hat, jnp.zeros(a_hat.shape[:-1], bool)
-    # One critic call on [2, n] rather than two on [n].
-    q_hat, q_adv = q_fn(jnp.stack([obs, obs]), jnp.stack([a_hat, advisor_actions]))
-    replaced = (q_adv > q_hat) & replace_allowed  # [n]
-    a_hat = jnp.where(replaced[:, None], advisor_actions, a_hat)
-    return jax.lax.stop_gradient(a_hat), replaced
-
-
-def mse_actor_loss(actions: jax.Array, a_hat: jax.Array) -> jax.Array:
-    """Eq. (3): (1/n) Σ_i ||stop_grad(â_i) - π(s_i)||² (sum over the 2 action dimensions)."""
-    return jnp.mean(jnp.sum(jnp.square(jax.lax.stop_gradient(a_hat) - actions), axis=-1))
-
-
-def dpg_actor_loss(q_fn: QFn, obs: jax.Array, actions: jax.Array) -> jax.Array:
-    """Deterministic policy gradient loss -(1/n) Σ_i Q(s_i, π(s_i)) (DDPG, TD3)."""
-    return -jnp.mean(q_fn(obs, actions))
+    update: Callable[..., tuple[Any, Metrics, jax.Array]]
+    """(state, replay, sample_key, critic_key, hp, update_index, episode=0) ->
+    (state, metrics, nonfinite): one whole update (see ``make_learner``)."""
 
 
 def _adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
@@ -193,7 +115,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
     """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able)."""
     if not isinstance(cfg, AgentConfig):
         raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")
-    actor = Actor(hidden=tuple(cfg.actor_hidden))
+    actor = make_actor(cfg.actor_hidden)
     critic = Critic(state_hidden=cfg.critic_state_hidden, hidden=tuple(cfg.critic_hidden))
 
     def init(key: jax.Array) -> LearnerState:
@@ -289,4 +211,50 @@ def make_learner(cfg: AgentConfig) -> Learner:
         }
         return new_state, metrics
 
-    return Learner(init=init, q_select=q_select, critic_step=critic_step, actor_step=actor_step)
+    def update(
+        state: LearnerState,
+        replay: ReplayState,
+        sample_key: jax.Array,
+        critic_key: jax.Array,
+        hp: HParams,
+        update_index: jax.Array | int,
+        episode: jax.Array | int = 0,
+    ) -> tuple[LearnerState, Metrics, jax.Array]:
+        """One update (Alg. 2 steps 6-15, Alg. A3 steps 9-22): sample, critic, delayed actor.
+
+        Args:
+          sample_key: draws the batch; critic_key: TD3's target smoothing noise.
+          update_index: global index of this update. Pass it *unbatched* under ``vmap``:
+            the delay test ``update_index % d == 0`` then stays a scalar and ``lax.cond``
+            really skips the actor step instead of computing and selecting it.
+          episode: episodes the agent has completed (the N_P gate of ``actor_step``).
+
+        Returns:
+          The new state; the critic and actor metrics (the actor's NaN on updates that
+          skip it); and whether any loss computed in this update was non-finite.
+        """
+        batch = replay_sample(replay, sample_key, cfg.batch_size)
+        state, critic_metrics = critic_step(state, batch, critic_key, hp)
+        update_actor = update_index % cfg.delay == 0
+
+        def skip_actor(s):
+            shapes = jax.eval_shape(actor_step, s, batch, hp, episode)[1]
+            return s, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+
+        state, actor_metrics = jax.lax.cond(
+            update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
+        )
+        nonfinite = ~_all_finite(critic_metrics) | (update_actor & ~_all_finite(actor_metrics))
+        return state, {**critic_metrics, **actor_metrics}, nonfinite
+
+    return Learner(
+        init=init,
+        q_select=q_select,
+        critic_step=critic_step,
+        actor_step=actor_step,
+        update=update,
+    )
+
+
+def _all_finite(metrics: Metrics) -> jax.Array:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in metrics.values()]))

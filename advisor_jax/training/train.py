@@ -35,14 +35,19 @@ import jax.numpy as jnp
 from flax import struct
 
 import envs
-from advisor_jax.advisor import advisor_action
-from advisor_jax.config import HParams, TrainConfig
-from advisor_jax.learner import LearnerState, make_learner
-from advisor_jax.networks import Actor
-from advisor_jax.noise import OUState, ou_init, ou_reset, ou_step
-from advisor_jax.replay import ReplayState, Transition, replay_add, replay_init, replay_sample
-from advisor_jax.runner import spec
-from advisor_jax.selector import select_action
+from advisor_jax.agent.advisor import advisor_action, arena_advisor
+from advisor_jax.agent.config import HParams, TrainConfig
+from advisor_jax.agent.learner import LearnerState, make_learner
+from advisor_jax.agent.networks import make_actor
+from advisor_jax.agent.noise import OUState, ou_init, ou_reset, ou_step
+from advisor_jax.agent.replay_buffer import (
+    ReplayState,
+    Transition,
+    replay_add,
+    replay_init,
+)
+from advisor_jax.agent.selector import select_action
+from advisor_jax.contract import spec
 
 
 @struct.dataclass
@@ -79,19 +84,17 @@ class Trainer(NamedTuple):
 
     init: Any  # (key) -> TrainState
     chunk: Any  # (state, hp, first_step) -> (state, metrics [chunk_steps])
-    train: Any  # (key, hp) -> TrainState: init + the worst-case number of chunks
-    policy_apply: Any  # (actor_params, obs) -> action
     max_steps: int  # environment steps per env after which every agent is surely done
-    env: Any
 
 
-def make_train(cfg: TrainConfig, env=None) -> Trainer:
+def make_train(cfg: TrainConfig) -> Trainer:
     """Builds the training functions of one agent type (static config)."""
     agent = cfg.agent
-    env = env if env is not None else envs.make_env(cfg.arena, **_env_overrides(cfg))
+    env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)  # 0: arena's
+    advisor = arena_advisor(env)
     learner = make_learner(agent)
-    actor = Actor(hidden=agent.actor_hidden)
-    n_envs, n_total, delay = cfg.envs_per_agent, cfg.episodes, agent.delay
+    actor = make_actor(agent.actor_hidden)
+    n_envs, n_total = cfg.envs_per_agent, cfg.episodes
     action_low = jnp.asarray(spec.ACTION_LOW, jnp.float32)
     action_high = jnp.asarray(spec.ACTION_HIGH, jnp.float32)
     collision = envs.COLLISION
@@ -122,7 +125,7 @@ def make_train(cfg: TrainConfig, env=None) -> Trainer:
         key, k_select, k_noise = jax.random.split(state.key, 3)
         obs = state.env.obs  # [E, 20]
         actor_action = actor.apply(state.learner.actor, obs)  # [E, 2]
-        adv_action = jax.vmap(advisor_action, in_axes=(0, None))(obs, env.advisor_params)
+        adv_action = jax.vmap(advisor_action, in_axes=(0, None))(obs, advisor)
         if agent.advisor_data:
             q_actor = learner.q_select(state.learner.critic, obs, actor_action)  # [E]
             q_advisor = learner.q_select(state.learner.critic, obs, adv_action)
@@ -164,7 +167,7 @@ def make_train(cfg: TrainConfig, env=None) -> Trainer:
         )
 
     def learn(state: TrainState, hp: HParams, step_index: jax.Array):
-        """`updates_per_step` gradient updates on replayed batches (Alg. 2 / A3).
+        """`updates_per_step` calls of the learner's update step (Alg. 2 / A3).
 
         Returns the new state, the mean metrics of the updates (NaN where nothing was
         computed) and whether any computed loss was non-finite.
@@ -174,17 +177,11 @@ def make_train(cfg: TrainConfig, env=None) -> Trainer:
         def one_update(carry, u):
             learner_state, key = carry
             key, k_sample, k_critic = jax.random.split(key, 3)
-            batch = replay_sample(state.replay, k_sample, agent.batch_size)
-            learner_state, critic_metrics = learner.critic_step(learner_state, batch, k_critic, hp)
-            update_actor = (step_index * cfg.updates_per_step + u) % delay == 0  # unbatched
-            learner_state, actor_metrics = jax.lax.cond(
-                update_actor,
-                lambda ls: learner.actor_step(ls, batch, hp, state.episodes),
-                lambda ls: (ls, _nan_like(jax.eval_shape(learner.actor_step, ls, batch, hp)[1])),
-                learner_state,
+            index = step_index * cfg.updates_per_step + u  # unbatched: a static schedule
+            learner_state, metrics, bad = learner.update(
+                learner_state, state.replay, k_sample, k_critic, hp, index, state.episodes
             )
-            bad = ~_all_finite(critic_metrics) | (update_actor & ~_all_finite(actor_metrics))
-            return (learner_state, key), ({**critic_metrics, **actor_metrics}, bad)
+            return (learner_state, key), (metrics, bad)
 
         def run_updates(learner_state):
             (learner_state, _), (metrics, bad) = jax.lax.scan(
@@ -220,25 +217,7 @@ def make_train(cfg: TrainConfig, env=None) -> Trainer:
         return jax.lax.scan(body, state, steps)
 
     max_steps = math.ceil(n_total / n_envs) * env.max_episode_steps
-
-    def train(key: jax.Array, hp: HParams) -> TrainState:
-        n_chunks = math.ceil(max_steps / cfg.chunk_steps)
-
-        def body(state, c):
-            state, _ = chunk(state, hp, c * cfg.chunk_steps)
-            return state, None
-
-        state, _ = jax.lax.scan(body, init(key), jnp.arange(n_chunks, dtype=jnp.int32))
-        return state
-
-    return Trainer(
-        init=init,
-        chunk=chunk,
-        train=train,
-        policy_apply=actor.apply,
-        max_steps=max_steps,
-        env=env,
-    )
+    return Trainer(init=init, chunk=chunk, max_steps=max_steps)
 
 
 def _write_episodes(log: EpisodeLog, episodes, env_state, actor_steps, collision) -> EpisodeLog:
@@ -263,11 +242,3 @@ def _nan_like(shapes):
         s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.floating) else 0, s.dtype
     )
     return jax.tree_util.tree_map(fill, shapes)
-
-
-def _all_finite(metrics: dict) -> jax.Array:
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in metrics.values()]))
-
-
-def _env_overrides(cfg: TrainConfig) -> dict:
-    return {"max_episode_steps": cfg.max_episode_steps} if cfg.max_episode_steps else {}

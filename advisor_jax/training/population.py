@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.config import HPARAM_NAMES, HParams, validate_hparams
+from advisor_jax.agent.config import HPARAM_NAMES, HParams, validate_hparams
 
 
 def parse_assignments(items: Sequence[str]) -> dict[str, list[float]]:

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 
 assert spec.N_ZONES & (spec.N_ZONES - 1) == 0, "zone_index wraps with a bit mask"
 ZONE_WIDTH_RAD = math.radians(spec.ZONE_WIDTH_DEG)

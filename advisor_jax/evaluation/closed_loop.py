@@ -24,8 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from advisor_jax import evaluate
-from advisor_jax.networks import Actor
+from advisor_jax.agent.networks import make_actor
+from advisor_jax.deploy.export import actor_params_from_policy
+from advisor_jax.evaluation import evaluate
 from advisor_jax.runner.drive import DiffDrive
 from advisor_jax.runner.loop import RUN, Controller, LoopConfig
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig, Pose, Scan
@@ -52,16 +53,6 @@ class ClosedLoopResult:
         return float(np.mean(self.runner_outcomes == self.jax_outcomes))
 
 
-def actor_params_from_policy(policy: Policy) -> tuple[dict, tuple[int, ...]]:
-    """The flax params (and hidden widths) of an exported policy, for the JAX reference."""
-    params = {
-        layer.name: {"kernel": jnp.asarray(layer.kernel), "bias": jnp.asarray(layer.bias)}
-        for layer in policy.layers
-    }
-    hidden = tuple(int(layer.kernel.shape[1]) for layer in policy.layers[:-1])
-    return {"params": params}, hidden
-
-
 def run_closed_loop(policy: Policy, episodes: int, key: jax.Array) -> ClosedLoopResult:
     """Runner-in-the-loop and JAX evaluation of ``policy`` on the same ``episodes``."""
     meta = policy.env
@@ -69,11 +60,11 @@ def run_closed_loop(policy: Policy, episodes: int, key: jax.Array) -> ClosedLoop
     if env.rig.kind != "lidar":
         raise ValueError(f"closed loop needs a lidar arena (physical), not {meta['arena']!r}")
     params, hidden = actor_params_from_policy(policy)
-    evaluate_fn = evaluate.make_evaluate(env, Actor(hidden=hidden).apply, episodes)
+    evaluate_fn = evaluate.make_evaluate(env, make_actor(hidden).apply, episodes)
     jax_outcomes = np.asarray(jax.jit(evaluate_fn)(params, key).outcome)
 
     readings = jax.jit(env.sensor_readings)
-    step = jax.jit(env.step)
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
     # Beam directions as the lidar reports them: degrees clockwise in [0, 360).
     angle_cw = np.mod(-np.asarray(env.rig.directions_deg, np.float64), 360.0)
     obs_cfg = ObservationConfig(
@@ -83,7 +74,7 @@ def run_closed_loop(policy: Policy, episodes: int, key: jax.Array) -> ClosedLoop
     drive = DiffDrive(track_width=2 * meta["robot_radius"])
     outcomes, stops = np.zeros(episodes, np.int32), 0
     for i, episode_key in enumerate(jax.random.split(key, episodes)):
-        state = env.reset(episode_key)
+        state = reset(episode_key)
         builder = ObservationBuilder(obs_cfg, tuple(float(g) for g in state.goal))
         controller = Controller(policy, builder, drive, loop_cfg)
         for t in range(env.max_episode_steps):

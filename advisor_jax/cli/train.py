@@ -7,8 +7,8 @@ import datetime
 from pathlib import Path
 from typing import Literal
 
-from advisor_jax.config import PRESETS, TrainConfig, preset
-from advisor_jax.sweep import parse_assignments
+from advisor_jax.agent.config import PRESETS, TrainConfig, preset
+from advisor_jax.training.population import parse_assignments
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,7 +104,7 @@ def default_out(cfg: TrainConfig, preset_name: str) -> Path:
 
 def train_command(args: TrainArgs) -> None:
     """Entry point of ``advisor-jax train``."""
-    from advisor_jax.run import run_training  # imports JAX: keep --help fast
+    from advisor_jax.training.host_loop import run_training  # imports JAX: keep --help fast
 
     cfg, base_hp, grid, seeds, arenas = build_run(args)
     out = args.out or default_out(cfg, args.preset)

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from advisor_jax.runner import spec
+from advisor_jax.contract import spec
 
 
 @struct.dataclass

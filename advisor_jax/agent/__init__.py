@@ -1,0 +1,3 @@
+"""One agent: configuration, networks, advisor (App. A), selector (Eq. 1), noise, replay
+buffer and the DDPG / ADDPG / TD3 / ATD3 learners (Alg. 2 / A3). Pure JAX functions.
+"""

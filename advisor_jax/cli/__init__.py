@@ -1,0 +1,1 @@
+"""The ``advisor-jax`` console script (``main``) and its subcommands."""

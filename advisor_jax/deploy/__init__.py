@@ -1,0 +1,1 @@
+"""Export of a trained actor for the numpy car runner, and its inverse."""
