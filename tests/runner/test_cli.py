@@ -75,13 +75,13 @@ class FakeTracker:
         pass
 
 
-def _dry_run(monkeypatch, export_dir, log, cycles: int) -> list[str]:
+def _dry_run(monkeypatch, export_dir, log, cycles: int, *extra: str) -> list[str]:
     """Drives ``cycles`` cycles with the fake lidar and tracker; returns the base arguments."""
     monkeypatch.setattr(hardware, "RplidarScanSource", FakeLidarSource)
     monkeypatch.setattr(hardware, "UdpPoseSource", FakeTracker)
     args = [str(export_dir), "--goal", "1.5", "0.8", *DRIVE, "--dry-run", "--max-cycles"]
     args.append(str(cycles))
-    assert cli.main([*args, "--log", str(log), "--rate", "50"]) == 0
+    assert cli.main([*args, "--log", str(log), "--rate", "50", *extra]) == 0
     return args
 
 
@@ -164,3 +164,10 @@ def test_replay_of_a_log_without_cycles_is_not_success(export_dir, tmp_path, cap
     log.write_text("\n".join(json.dumps(x) for x in [header, *cycles, footer]) + "\n")
     assert cli.main(["--replay", str(log)]) == 2
     assert f"{log}: cycle record 1 is malformed (missing field 't')" in _error_line(capsys)
+
+
+def test_range_offset_other_than_training_is_warned(export_dir, tmp_path, capsys, monkeypatch):
+    _dry_run(monkeypatch, export_dir, tmp_path / "log.jsonl", 1, "--range-offset", "0.3")
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--range-offset 0.3 m differs from the 0.22 m the policy was trained with" in err
+    assert "reads 0.08 m nearer than in training" in err
