@@ -55,7 +55,7 @@ def arena(
       name: Arena: training, validation, physical or procedural.
       xml: Output file.
       seed: Procedural arena only: write the layout of the first episode of
-        env.reset(PRNGKey(seed)), as drawn in training and evaluation.
+        env.reset(key of seed), as drawn in training and evaluation.
     """
     from advisor_jax.sweep import seed_key
 
