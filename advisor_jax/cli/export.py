@@ -25,7 +25,7 @@ class ExportArgs:
 
     source: Annotated[Path, tyro.conf.Positional]
     """Run directory written by ``advisor-jax train``."""
-    out: Path
+    out: Annotated[str, tyro.conf.arg(metavar="DIR")]
     """Export directory (created; files are replaced atomically)."""
     agent: int = 0
     """Index of the agent in the run (see run.json "agents")."""
@@ -41,22 +41,23 @@ class ExportArgs:
 
 def export_command(args: ExportArgs) -> dict:
     """Entry point of ``advisor-jax export``; returns the written policy.json dict."""
-    import jax
 
     import envs
     from advisor_jax.agent.networks import make_actor
     from advisor_jax.deploy.export import export_policy
     from advisor_jax.evaluation.evaluate import rollout_observations
+    from advisor_jax.training.population import seed_key
     from advisor_jax.training.run_directory import load_actor
 
     if args.golden_envs <= 0 or args.golden_steps <= 0:
         raise ValueError("--golden-envs and --golden-steps must be positive")
+    if not args.out.strip():  # Path("") is ".": it would write into the current directory
+        raise ValueError("--out '' is empty: name the export directory")
+    key = seed_key(args.seed)
     cfg, row, actor = load_actor(args.source, args.agent)
     env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)
     policy_apply = make_actor(cfg.agent.actor_hidden).apply
-    obs = rollout_observations(
-        env, policy_apply, actor, jax.random.PRNGKey(args.seed), args.golden_envs, args.golden_steps
-    )
+    obs = rollout_observations(env, policy_apply, actor, key, args.golden_envs, args.golden_steps)
     config_meta = {
         "agent": cfg.agent.name,
         "source": str(args.source),

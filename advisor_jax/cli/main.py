@@ -10,14 +10,16 @@
 To add a subcommand, write a function with type-hinted keyword arguments and a docstring
 (tyro turns them into flags and ``--help``) and add it to ``SUBCOMMANDS``. ``main`` turns
 every ``ValueError``, ``OSError`` and runner error into one red ``error: ...`` line and exit
-status 2, never a traceback. JAX, MuJoCo and the environments are imported inside the
-commands, so ``--help`` stays quick.
+status 2, and an interrupt (Ctrl-C, or SIGTERM while training) into one line and status
+128 + the signal number, never a traceback. JAX, MuJoCo and the environments are imported
+inside the commands, so ``--help`` stays quick.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json as jsonlib
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -53,12 +55,12 @@ def arena(
       name: Arena: training, validation, physical or procedural.
       xml: Output file.
       seed: Procedural arena only: write the layout of the first episode of
-        env.reset(PRNGKey(seed)), as drawn in training and evaluation.
+        env.reset(key of seed), as drawn in training and evaluation.
     """
-    import jax
+    from advisor_jax.training.population import seed_key
 
     env = _envs().make_env(name)
-    boxes = env.layout_boxes(jax.random.PRNGKey(seed)) if env.procedural else None
+    boxes = env.layout_boxes(seed_key(seed)) if env.procedural else None
     text = env.xml(boxes)
     atomic_write_text(xml, text)  # OSError: 'cannot write <xml>: <why>'
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
@@ -91,13 +93,16 @@ def evaluate(
     env = _envs().make_env(arena)
     from advisor_jax.cli.policy_spec import resolve_policy
     from advisor_jax.evaluation.evaluate import make_evaluate, summary
+    from advisor_jax.training.population import seed_key
+
+    key = seed_key(seed)  # before compiling: a bad --seed fails fast
 
     apply, params = resolve_policy(policy, env)
     evaluate_fn = jax.jit(make_evaluate(env, apply, episodes))
     status = Console(stderr=True)
     with status.status(f"compiling and running {episodes} episodes of {arena} (h_max = "
                        f"{env.max_episode_steps}) ..."):  # fmt: skip
-        metrics = jax.block_until_ready(evaluate_fn(params, jax.random.PRNGKey(seed)))
+        metrics = jax.block_until_ready(evaluate_fn(params, key))
     result = {"policy": policy, "arena": arena, "seed": seed, **summary(metrics)}
     if json:
         print(jsonlib.dumps(result))
@@ -157,6 +162,12 @@ def main(argv: Sequence[str] | None = None) -> None:
             Text(f"error: {message}", style="bold red"), soft_wrap=True
         )
         sys.exit(2)
+    except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM during training (runlock.Interrupted)
+        signum = getattr(err, "signum", signal.SIGINT)
+        Console(stderr=True, highlight=False).print(
+            Text(f"stopped by {signal.Signals(signum).name}", style="bold red")
+        )
+        sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
 
 
 if __name__ == "__main__":

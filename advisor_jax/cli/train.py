@@ -5,10 +5,12 @@ from __future__ import annotations
 import dataclasses
 import datetime
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+import tyro
 
 from advisor_jax.agent.config import PRESETS, TrainConfig, preset
-from advisor_jax.training.population import parse_assignments
+from advisor_jax.training.population import SEED_MAX, check_seed, parse_assignments
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,8 +52,9 @@ class TrainArgs:
     """Replay capacity override."""
     chunk_steps: int | None = None
     """Environment steps per jitted chunk (progress/checkpoint granularity)."""
-    out: Path | None = None
-    """Run directory (default: runs/<agent>-<preset>-<UTC time>)."""
+    out: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
+    """Run directory (default: runs/<agent>-<preset>-<UTC time>). Held exclusively while
+    the run trains: a second run or --resume into it is refused."""
     eval_episodes: int = 100
     """Evaluation episodes per agent and arena after training (0 = skip)."""
     eval_arenas: tuple[str, ...] | None = None
@@ -70,6 +73,13 @@ def build_run(args: TrainArgs):
         raise ValueError(f"unknown preset {args.preset!r}; choose one of {', '.join(PRESETS)}")
     if args.seeds <= 0:
         raise ValueError(f"--seeds must be a positive integer, got {args.seeds}")
+    check_seed(args.seed, "--seed")
+    if args.seed + args.seeds - 1 > SEED_MAX:
+        raise ValueError(
+            f"--seed {args.seed} --seeds {args.seeds} runs past the largest seed 2^64 - 1"
+        )
+    if args.out is not None and not args.out.strip():
+        raise ValueError("--out '' is empty: name the run directory (or leave --out out)")
     agent_overrides = {
         k: v
         for k, v in (("batch_size", args.batch_size), ("buffer_size", args.buffer_size))
@@ -83,12 +93,18 @@ def build_run(args: TrainArgs):
         if getattr(args, name) is not None
     }  # fmt: skip
     cfg = dataclasses.replace(cfg, **train_overrides)
-    overrides = parse_assignments(args.hp)
+    overrides = parse_assignments(args.hp, "--hp")
     for name, values in overrides.items():
         if len(values) != 1:
             raise ValueError(f"--hp {name} takes one value; use --grid to sweep several")
     base_hp = base_hp.replace(**{k: v[0] for k, v in overrides.items()})
-    grid = parse_assignments(args.grid)
+    grid = parse_assignments(args.grid, "--grid")
+    both = sorted(set(overrides) & set(grid))
+    if both:
+        raise ValueError(
+            f"{', '.join(both)} given to both --hp and --grid (the grid would override --hp); "
+            "give each name once"
+        )
     seeds = list(range(args.seed, args.seed + args.seeds))
     arenas = args.eval_arenas or (
         ("physical",) if cfg.arena == "physical" else ("training", "validation")
@@ -107,7 +123,7 @@ def train_command(args: TrainArgs) -> None:
     from advisor_jax.training.host_loop import run_training  # imports JAX: keep --help fast
 
     cfg, base_hp, grid, seeds, arenas = build_run(args)
-    out = args.out or default_out(cfg, args.preset)
+    out = Path(args.out) if args.out is not None else default_out(cfg, args.preset)
     run_training(
         cfg,
         base_hp,

@@ -8,8 +8,9 @@ reads and verifies on the car::
     policy.npz    float32 "hidden_i/kernel" [in, out] (flax layout), "hidden_i/bias", "head/..."
     golden.npz    obs [N >= 256, 20] and actions [N, 2] from the JIT-compiled JAX actor
     policy.onnx   (optional) the same MLP at opset 13 (``runner/onnx_model.py``)
-    policy.json   metadata (schema 1): layers, heads, observation/sensor layout, control
-                  scaling, env and config, config_hash and sha256 of every file
+    policy.json   metadata (schema 2): layers, heads, observation/sensor layout, control
+                  scaling, env and config, config_hash, sha256 of every file and of
+                  policy.json's own contents (metadata_sha256)
 
 Outline::
 
@@ -141,6 +142,7 @@ def export_policy(
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "advisor_jax_version": __version__,
     }
+    meta["metadata_sha256"] = rp.metadata_sha256(meta)  # last: covers every field above
     atomic_write_bytes(os.path.join(out_dir, rp.POLICY_NPZ), weights)
     atomic_write_bytes(os.path.join(out_dir, rp.GOLDEN_NPZ), golden_bytes)
     onnx_path = os.path.join(out_dir, rp.POLICY_ONNX)
@@ -212,15 +214,16 @@ def _describe(env: dict) -> tuple[dict, dict, dict]:
         or not (bounds[0] < bounds[1] and bounds[2] < bounds[3])
     ):
         raise ExportError(f"env_meta bounds={bounds!r} must be [xmin, xmax, ymin, ymax]")
+    trained = rp.trained_values(env)  # the runner checks every copy below against these
     control = {
-        "v_max": env.get("v_max", spec.V_MAX),
-        "omega_max": env["omega_max"],
-        "dt": env.get("dt", spec.CONTROL_DT),
+        "v_max": trained["v_max"],
+        "omega_max": trained["omega_max"],
+        "dt": trained["dt"],
         "action_names": list(spec.ACTION_NAMES),
         "action_low": list(spec.ACTION_LOW),
         "action_high": list(spec.ACTION_HIGH),
     }
-    max_range = env.get("max_range", spec.MAX_RANGE)
+    max_range = trained["max_range"]
     for key, value in (
         ("v_max", control["v_max"]),
         ("omega_max", control["omega_max"]),
@@ -230,9 +233,9 @@ def _describe(env: dict) -> tuple[dict, dict, dict]:
         if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
             raise ExportError(f"env_meta {key}={value!r} must be a positive number")
     # The car's lidar sits at the centre; zones read free distance beyond the body edge.
-    offset = env.get("lidar_range_offset")
-    if not isinstance(offset, int | float):
-        offset = env.get("robot_radius", 0.0)
+    offset = trained["lidar_range_offset"]
+    if not isinstance(offset, int | float) or not math.isfinite(offset) or offset < 0:
+        raise ExportError(f"env_meta lidar_range_offset={offset!r} must be a number >= 0")
     sensors = {
         "n_zones": spec.N_ZONES,
         "zone_start_deg": spec.ZONE_START_DEG,

@@ -212,6 +212,15 @@ def drive(args: argparse.Namespace) -> int:
         max_speed=args.max_pose_speed,
         bounds=policy.bounds,
     )
+    if args.range_offset is not None and args.range_offset != policy.range_offset:
+        print(
+            f"{PROG}: warning: --range-offset {args.range_offset:g} m differs from the "
+            f"{policy.range_offset:g} m the policy was trained with: every obstacle reads "
+            f"{abs(args.range_offset - policy.range_offset):g} m "
+            f"{'nearer' if args.range_offset > policy.range_offset else 'farther'} than in "
+            "training (correct only if that is this car's lidar-to-body-edge distance)",
+            file=sys.stderr,
+        )
     builder = ObservationBuilder(obs_cfg, tuple(args.goal))
     collision = _default(args.collision_distance, policy.env, "T_c", None)
     rate = args.rate or 1.0 / policy.dt

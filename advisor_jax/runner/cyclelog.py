@@ -90,14 +90,21 @@ def read_log(path: str | os.PathLike) -> tuple[dict, Iterator[dict]]:
             lines = [line for line in f if line.strip()]
     except OSError as e:
         raise ReplayError(f"{path}: cannot read log ({e.strerror or e})") from None
+    except UnicodeDecodeError as e:  # a ValueError that would not name the file
+        raise ReplayError(
+            f"{path}: not a loop log (not UTF-8 text: byte {e.start} is {e.object[e.start]:#04x})"
+        ) from None
     records = []
     for number, line in enumerate(lines, 1):
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except json.JSONDecodeError as e:
             if number == len(lines):
                 break  # the last line of a log cut off by a crash or power loss
             raise ReplayError(f"{path}:{number}: not JSON ({e})") from None
+        if not isinstance(record, dict):
+            raise ReplayError(f"{path}:{number}: not a JSON object ({type(record).__name__})")
+        records.append(record)
     if not records or records[0].get("type") != "header":
         raise ReplayError(f"{path}: first line is not a loop log header")
     if records[0].get("schema") != LOG_SCHEMA:

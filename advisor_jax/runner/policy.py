@@ -3,13 +3,17 @@
 An export directory (written by ``advisor_jax.deploy.export``) holds::
 
     policy.json   metadata: schema_version, layers, heads, observation/sensor layout,
-                  control scaling, env and config, config_hash, weights_sha256, golden_sha256
+                  control scaling, env and config, config_hash, weights_sha256, golden_sha256,
+                  metadata_sha256 (schema 2)
     policy.npz    float32 "<layer>/kernel" [in, out] (flax layout) and "<layer>/bias" [out]
     golden.npz    obs [N, 20] and the JIT-compiled JAX actor's actions [N, 2]
 
-``load_policy`` refuses to return a policy unless every check passes: schema version, sha256 of
-both npz files, config hash, layer names/shapes/dtypes against the json, finite weights, the
-observation and zone layout against ``spec.py``, and the numpy MLP reproducing every golden
+``load_policy`` refuses to return a policy unless every check passes: schema version, the
+sha256 of policy.json's own contents (``metadata_sha256``, schema 2), sha256 of both npz files,
+config hash, layer names/shapes/dtypes against the json, finite weights, the observation and
+zone layout against ``spec.py``, every field the car acts on (``control``, the heads' scales,
+``sensors``, ``observation.max_range``) against the values the actor was trained with
+(``trained_values``: the hash-covered ``env``), and the numpy MLP reproducing every golden
 action within ``GOLDEN_TOLERANCE`` (max abs). The forward pass is the actor's maths::
 
     x = obs;  x = relu(x @ W_i + b_i) for each hidden layer;  z = x @ W_head + b_head
@@ -35,7 +39,10 @@ import numpy as np
 from advisor_jax.contract import spec
 from advisor_jax.runner.errors import PolicyError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""Schema 2 added ``metadata_sha256``. Schema 1 exports are still read: every field they hold
+that changes what the car does is checked against the hash-covered ``env`` all the same."""
+READABLE_SCHEMAS = (1, 2)
 POLICY_JSON = "policy.json"
 POLICY_NPZ = "policy.npz"
 GOLDEN_NPZ = "golden.npz"
@@ -63,6 +70,36 @@ def config_hash(config_meta: dict, env_meta: dict) -> str:
 
 def sha256_bytes(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+def metadata_sha256(meta: dict) -> str:
+    """sha256 of the canonical JSON of policy.json without its ``metadata_sha256`` field.
+
+    ``config_hash`` covers only env and config; this covers every other field too (control,
+    heads, sensors, observation, layers, the file hashes), so any edit of policy.json after
+    export is refused. Like every hash here it detects accidents and careless edits, not a
+    forger, who can recompute it: the cross-checks against the trained values still apply.
+    """
+    return sha256_bytes(canonical_json({k: v for k, v in meta.items() if k != "metadata_sha256"}))
+
+
+def trained_values(env: dict) -> dict[str, Any]:
+    """What the actor was trained with, read from the env metadata (covered by config_hash).
+
+    The exporter derives policy.json's ``control``, heads and ``sensors`` sections from these
+    (same defaults), and ``load_policy`` requires them to be equal: the car never drives with a
+    speed, yaw rate, period, lidar offset or range cutoff other than the simulator's.
+    """
+    offset = env.get("lidar_range_offset")
+    if not isinstance(offset, int | float):
+        offset = env.get("robot_radius", 0.0)
+    return {
+        "v_max": env.get("v_max", spec.V_MAX),
+        "omega_max": env.get("omega_max"),
+        "dt": env.get("dt", spec.CONTROL_DT),
+        "max_range": env.get("max_range", spec.MAX_RANGE),
+        "lidar_range_offset": offset,
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,10 +232,11 @@ def _check_meta(json_path: str, meta: Any) -> None:
     if not isinstance(meta, dict):
         raise _fail(json_path, "top level must be a JSON object")
     version = meta.get("schema_version")
-    if version != SCHEMA_VERSION:
+    if type(version) is not int or version not in READABLE_SCHEMAS:
         raise _fail(
             json_path,
-            f"unsupported schema_version {version!r} (this runner reads {SCHEMA_VERSION})",
+            f"unsupported schema_version {version!r} (this runner reads "
+            f"{', '.join(map(str, READABLE_SCHEMAS))})",
         )
     required = (
         "layers",
@@ -211,10 +249,21 @@ def _check_meta(json_path: str, meta: Any) -> None:
         "config_hash",
         "weights_sha256",
         "golden_sha256",
-    )
+    ) + (("metadata_sha256",) if version >= 2 else ())
     missing = [k for k in required if k not in meta]
     if missing:
         raise _fail(json_path, f"missing field(s) {', '.join(missing)}")
+    if version >= 2:
+        try:
+            actual = metadata_sha256(meta)
+        except (TypeError, ValueError) as e:
+            raise _fail(json_path, f"contents are not canonical JSON ({e})") from None
+        if actual != meta["metadata_sha256"]:
+            raise _fail(
+                json_path,
+                f"metadata_sha256 {str(meta['metadata_sha256'])[:16]}… does not match its "
+                f"contents ({actual[:16]}…): policy.json was edited after export",
+            )
     for key in ("observation", "sensors", "control", "env", "config"):
         if not isinstance(meta[key], dict):
             raise _fail(json_path, f"{key} must be a JSON object")
@@ -253,6 +302,71 @@ def _check_meta(json_path: str, meta: Any) -> None:
         raise _fail(json_path, f"env/config are not canonical JSON ({e})") from None
     if expected != meta["config_hash"]:
         raise _fail(json_path, "config_hash does not match its env/config (metadata was edited)")
+    _check_against_training(json_path, meta)
+
+
+def _check_against_training(json_path: str, meta: dict) -> None:
+    """Every field the car acts on must equal what the actor was trained with.
+
+    policy.json repeats the training values in the sections the car reads (``control``,
+    ``heads``, ``sensors``, ``observation``); ``config_hash`` covers only ``env``. A value
+    that differs from its ``env`` original would make the car faster (v_max), turn harder
+    (omega_max), run at another rate (dt) or see obstacles nearer or farther (lidar offset,
+    range cutoff) than in training, so it is refused, naming the field and both values.
+    """
+    trained = trained_values(meta["env"])
+    for name, value in trained.items():
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise _fail(json_path, f"env.{name}={value!r} (the trained value) is not a number")
+    control, sensors, obs = meta["control"], meta["sensors"], meta["observation"]
+    heads = {h.get("name"): h for h in meta["heads"]}
+    fields = [
+        ("control.v_max", control.get("v_max"), "v_max"),
+        ("control.omega_max", control.get("omega_max"), "omega_max"),
+        ("control.dt", control.get("dt"), "dt"),
+        ("heads[V].scale", heads.get("V", {}).get("scale"), "v_max"),
+        ("heads[omega].scale", heads.get("omega", {}).get("scale"), "omega_max"),
+        ("sensors.lidar_range_offset", sensors.get("lidar_range_offset"), "lidar_range_offset"),
+        ("sensors.max_range", sensors.get("max_range"), "max_range"),
+        ("observation.max_range", obs.get("max_range"), "max_range"),
+    ]
+    for where, value, name in fields:
+        if value != trained[name]:
+            beyond = (
+                " (beyond the trained limit)"
+                if name in ("v_max", "omega_max")
+                and isinstance(value, int | float)
+                and value > trained[name]
+                else ""
+            )
+            raise _fail(
+                json_path,
+                f"{where}={value!r} differs from {name}={trained[name]!r} the actor was "
+                f"trained with (env.{name}){beyond}",
+            )
+    boxes = (
+        ("control.action_names", control.get("action_names"), list(spec.ACTION_NAMES)),
+        ("control.action_low", control.get("action_low"), list(spec.ACTION_LOW)),
+        ("control.action_high", control.get("action_high"), list(spec.ACTION_HIGH)),
+        (
+            "heads[V].range",
+            heads.get("V", {}).get("range"),
+            [spec.ACTION_LOW[0], spec.ACTION_HIGH[0]],
+        ),
+        (
+            "heads[omega].range",
+            heads.get("omega", {}).get("range"),
+            [spec.ACTION_LOW[1], spec.ACTION_HIGH[1]],
+        ),
+        (
+            "sensors.sonar_directions_deg",
+            sensors.get("sonar_directions_deg"),
+            list(spec.SONAR_DIRECTIONS_DEG),
+        ),
+    )
+    for where, value, expected in boxes:
+        if value != expected:
+            raise _fail(json_path, f"{where}={value!r} differs from this runner's {expected!r}")
 
 
 def _build_layers(json_path: str, npz_path: str, meta: dict, arrays: dict) -> tuple[Layer, ...]:

@@ -104,7 +104,11 @@ def replay(
     *,
     tolerance: float = 0.0,
 ) -> ReplayReport:
-    """Re-runs every logged cycle; the report lists mismatches (empty when reproduced)."""
+    """Re-runs every logged cycle; the report lists mismatches (empty when reproduced).
+
+    Raises ReplayError for an unreadable or malformed log, a different policy, and a log in
+    which no cycle ran the controller: replaying nothing must not read as success.
+    """
     header, cycles = read_log(log_path)
     policy = load_policy(policy_dir if policy_dir is not None else header.get("policy_dir", ""))
     if policy.weights_sha256 != header.get("weights_sha256"):
@@ -114,6 +118,26 @@ def replay(
         )
     controller = controller_from_header(header, policy)
     report = ReplayReport()
+    try:
+        _replay_cycles(controller, cycles, tolerance, report)
+    except (KeyError, TypeError, ValueError) as e:  # a cycle record lacks or garbles a field
+        what = f"missing field {e}" if isinstance(e, KeyError) else f"{type(e).__name__}: {e}"
+        raise ReplayError(
+            f"{log_path}: cycle record {report.cycles - 1} is malformed ({what})"
+        ) from None
+    if report.replayed == 0:  # nothing was compared: that is no proof of anything
+        raise ReplayError(
+            f"{log_path}: no cycles to replay: "
+            + (
+                "the log holds only its header (the loop never completed a cycle)"
+                if report.cycles == 0
+                else f"in all {report.cycles} cycles a source failed, so the controller never ran"
+            )
+        )
+    return report
+
+
+def _replay_cycles(controller: Controller, cycles, tolerance: float, report: ReplayReport) -> None:
     points, points_stamp = None, None
     for rec in cycles:
         report.cycles += 1
@@ -138,4 +162,3 @@ def replay(
             report.mismatched += 1
             if len(report.mismatches) < MAX_REPORTED:
                 report.mismatches.append(f"cycle {rec['i']}: " + "; ".join(problems))
-    return report

@@ -15,6 +15,13 @@ that ``resume=True`` continues an interrupted run. At the end it writes, into ``
     episodes.csv      the same, one row per (agent, episode)
     eval.json         deterministic-actor evaluation per agent and arena
     learning_curve.png, train_log.jsonl
+    .lock             held (flock) by the running process: pid, host, start time
+
+Safety (issue 20): every option is checked before anything is written or compiled; the run
+takes ``out_dir`` exclusively (``runlock``); SIGTERM is handled like Ctrl-C (checkpoint,
+status "interrupted"); ``resume=True`` of a run killed before its first checkpoint starts it
+afresh, and one whose newest checkpoint is corrupt resumes from the previous good one
+(``checkpoint.restore_latest``), saying so.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -31,12 +39,13 @@ import jax.numpy as jnp
 import numpy as np
 from rich.console import Console
 
+import envs
 from advisor_jax import __version__
 from advisor_jax.agent.config import HParams, TrainConfig
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
-from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training import checkpoint, reporting
-from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
+from advisor_jax.training import checkpoint, reporting, runlock
+from advisor_jax.training.population import SEED_MAX, agent_keys, build_population, seed_key
 from advisor_jax.training.train import make_train
 
 
@@ -54,22 +63,55 @@ def run_training(
     progress: bool = True,
     console: Console | None = None,
     meta: Mapping | None = None,
+    program: tuple | None = None,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
-    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is.
+    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is. ``program`` is
+    ``population_functions(cfg)`` when the caller already compiled it (tests, sweeps of
+    several runs of one config); None builds it here. Raises
+    ValueError for a bad option before anything is written, and ``runlock.RunDirectoryBusy``
+    if another process is training into ``out_dir``. An interrupt (Ctrl-C or SIGTERM) saves
+    a checkpoint and re-raises KeyboardInterrupt (``runlock.Interrupted`` for SIGTERM).
     """
     console = console or Console(stderr=True)
+    if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
+        raise ValueError("the run directory (--out) must not be empty")
     out_dir = Path(out_dir)
+    if eval_episodes < 0:
+        raise ValueError(f"eval_episodes must be >= 0, got {eval_episodes}")
+    if checkpoint_every < 0:
+        raise ValueError(
+            f"checkpoint_every must be >= 0 (0: only at the end), got {checkpoint_every}"
+        )
+    for what, names in (("arena", [cfg.arena]), ("evaluation arena", list(eval_arenas))):
+        unknown = [a for a in names if a not in envs.ARENAS]
+        if unknown:
+            raise ValueError(
+                f"unknown {what} {', '.join(map(repr, unknown))}; choose from "
+                f"{', '.join(envs.ARENAS)}"
+            )
+    hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
+    if resume and not (out_dir / "run.json").exists():
+        raise ValueError(f"nothing to resume: {out_dir / 'run.json'} does not exist")
+    with runlock.exclusive(out_dir), runlock.sigterm_as_interrupt():
+        return _train_locked(
+            cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
+            checkpoint_every, resume, progress, console, meta, program,
+        )  # fmt: skip
+
+
+def _train_locked(
+    cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
+    checkpoint_every, resume, progress, console, meta, program,
+) -> dict:  # fmt: skip
+    """``run_training`` once its options are checked and ``out_dir`` is held."""
     run_file = out_dir / "run.json"
     if run_file.exists() and not resume:
         raise ValueError(
             f"{out_dir} already holds a run; pass --resume to continue it or choose another --out"
         )
-    if eval_episodes < 0:
-        raise ValueError(f"eval_episodes must be >= 0, got {eval_episodes}")
-    hp, agents = build_population(base_hp, grid, seeds)
-    trainer, init_fn, chunk_fn = population_functions(cfg)
+    trainer, init_fn, chunk_fn = program or population_functions(cfg)
     keys = agent_keys([a["seed"] for a in agents])
 
     summary = {
@@ -84,26 +126,38 @@ def run_training(
         "status": "running",
     }
     step = 0
+    log_path = out_dir / "train_log.jsonl"
     if resume:
-        if not run_file.exists():
-            raise ValueError(f"nothing to resume: {run_file} does not exist")
-        saved = json.loads(run_file.read_text())
-        if saved.get("config") != json.loads(json.dumps(summary["config"])) or saved.get(
-            "agents"
-        ) != json.loads(json.dumps(agents)):
-            raise ValueError(f"cannot resume {out_dir}: its config or agents differ from these")
-        abstract = jax.eval_shape(init_fn, keys)
-        state, step = checkpoint.restore_latest(out_dir / "checkpoints", abstract)
+        try:
+            saved = json.loads(run_file.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"cannot resume {out_dir}: {run_file} is corrupt ({e})") from None
+        current = json.loads(json.dumps({"config": summary["config"], "agents": agents}))
+        differences = _differences({k: saved.get(k) for k in current}, current)
+        if differences:
+            raise ValueError(
+                f"cannot resume {out_dir}: its config or agents differ from these: "
+                + "; ".join(differences)
+            )
         summary["created"] = saved.get("created", summary["created"])
-        console.print(f"resuming {out_dir} at environment step {step}")
+        if checkpoint.has_checkpoints(out_dir / "checkpoints"):
+            abstract = jax.eval_shape(init_fn, keys)
+            state, step = checkpoint.restore_latest(
+                out_dir / "checkpoints", abstract, report=lambda m: console.print(f"warning: {m}")
+            )
+            _trim_log(log_path, step)
+            console.print(f"resuming {out_dir} at environment step {step}")
+        else:  # killed before its first checkpoint: nothing to lose by starting again
+            state = init_fn(keys)
+            log_path.unlink(missing_ok=True)
+            console.print(f"{out_dir} has no checkpoint yet (stopped before the first one): "
+                          "starting it afresh")  # fmt: skip
     else:
-        out_dir.mkdir(parents=True, exist_ok=True)
         state = init_fn(keys)
     atomic_write_json(run_file, summary)
 
     n_agents, n_total = len(agents), cfg.episodes
     reported = np.zeros(n_agents, bool)
-    log_path = out_dir / "train_log.jsonl"
     t_start = time.perf_counter()
     chunks = 0
     try:
@@ -125,11 +179,15 @@ def run_training(
                     break
                 if checkpoint_every and chunks % checkpoint_every == 0:
                     checkpoint.save_step(out_dir / "checkpoints", step, state)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
         checkpoint.save_step(out_dir / "checkpoints", step, state)
         summary.update(status="interrupted", env_steps_per_agent=step)
         atomic_write_json(run_file, summary)
-        console.print(f"interrupted; checkpoint saved, continue with --resume (--out {out_dir})")
+        what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
+        console.print(
+            f"{what} at environment step {step}; checkpoint saved, continue with --resume "
+            f"(--out {out_dir})"
+        )
         raise
     train_seconds = time.perf_counter() - t_start
 
@@ -147,7 +205,7 @@ def run_training(
         evaluation = evaluate_population(
             evaluators,
             state.learner.actor,
-            key=jax.random.PRNGKey(10_000 + int(seeds[0])),
+            key=seed_key((10_000 + int(seeds[0])) % (SEED_MAX + 1)),
             diverged=np.asarray(state.diverged),
         )
         atomic_write_json(out_dir / "eval.json", evaluation)
@@ -166,6 +224,44 @@ def run_training(
     checkpoint.save_step(out_dir / "checkpoints", step, state)
     reporting.print_summary(console, summary, metrics, grid)
     return summary
+
+
+def _differences(saved, current, path: str = "") -> list[str]:
+    """Where two JSON values differ: 'config.episodes: run.json has 60, these options give
+    25', one entry per differing leaf (the first 5, then a count)."""
+    out: list[str] = []
+    if isinstance(saved, dict) and isinstance(current, dict):
+        for key in sorted(set(saved) | set(current)):
+            where = f"{path}.{key}" if path else key
+            if key not in saved or key not in current:
+                side = "run.json lacks it" if key not in saved else "these options lack it"
+                out.append(f"{where}: {side}")
+            else:
+                out += _differences(saved[key], current[key], where)
+    elif isinstance(saved, list) and isinstance(current, list) and len(saved) == len(current):
+        for i, (a, b) in enumerate(zip(saved, current, strict=True)):
+            out += _differences(a, b, f"{path}[{i}]")
+    elif saved != current:
+        out.append(f"{path}: run.json has {saved!r}, these options give {current!r}")
+    if not path and len(out) > 5:
+        out = out[:5] + [f"and {len(out) - 5} more"]
+    return out
+
+
+def _trim_log(log_path: Path, step: int) -> None:
+    """Drops the train_log.jsonl lines of chunks after ``step`` (the checkpoint resumed
+    from): they will be run, and logged, again."""
+    if not log_path.exists():
+        return
+    kept = []
+    for line in log_path.read_text().splitlines():
+        try:
+            if json.loads(line)["step"] > step:
+                continue
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut off by the kill
+        kept.append(line + "\n")
+    atomic_write_text(log_path, "".join(kept))
 
 
 def population_functions(cfg: TrainConfig):

@@ -19,10 +19,18 @@ import numpy as np
 
 from advisor_jax.agent.config import HPARAM_NAMES, HParams, validate_hparams
 
+SEED_MAX = 2**64 - 1
+"""Seeds are 64-bit: ``seed_key`` puts both 32-bit halves into the threefry key."""
 
-def parse_assignments(items: Sequence[str]) -> dict[str, list[float]]:
-    """``["beta=0.01,0.1", "gamma=0.9"]`` → ``{"beta": [0.01, 0.1], "gamma": [0.9]}``."""
+
+def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict[str, list[float]]:
+    """``["beta=0.01,0.1", "gamma=0.9"]`` → ``{"beta": [0.01, 0.1], "gamma": [0.9]}``.
+
+    A name given twice is refused (naming ``option`` and both items) rather than silently
+    keeping the last one.
+    """
     grid: dict[str, list[float]] = {}
+    given: dict[str, str] = {}
     for item in items:
         name, sep, values = item.partition("=")
         name = name.strip()
@@ -32,6 +40,11 @@ def parse_assignments(items: Sequence[str]) -> dict[str, list[float]]:
             raise ValueError(
                 f"unknown hyperparameter {name!r}; choose from {', '.join(HPARAM_NAMES)}"
             )
+        if name in given:
+            raise ValueError(
+                f"{option} sets {name} twice ({given[name]!r} and {item!r}); give it once"
+            )
+        given[name] = item
         try:
             grid[name] = [float(v) for v in values.split(",")]
         except ValueError:
@@ -49,6 +62,8 @@ def build_population(
     """
     if not seeds:
         raise ValueError("need at least one seed")
+    for seed in seeds:
+        check_seed(seed)
     for name, values in grid.items():
         if name not in HPARAM_NAMES:
             raise ValueError(f"unknown hyperparameter {name!r}")
@@ -67,9 +82,31 @@ def build_population(
     return jax.tree_util.tree_map(jnp.asarray, stacked), rows
 
 
+def check_seed(seed: int, what: str = "seed") -> int:
+    """``seed`` as an int, or ValueError naming it and the allowed range [0, 2^64 - 1]."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise ValueError(f"{what} {seed!r} must be an integer in [0, 2^64 - 1]")
+    seed = int(seed)
+    if not 0 <= seed <= SEED_MAX:
+        raise ValueError(f"{what} {seed} is out of range: seeds are integers in [0, 2^64 - 1]")
+    return seed
+
+
+def seed_key(seed: int) -> jax.Array:
+    """The raw threefry key ``[seed >> 32, seed & 0xFFFFFFFF]`` (uint32[2]) of a 64-bit seed.
+
+    ``jax.random.PRNGKey(seed)`` with 64-bit types disabled (the default) keeps only the low
+    32 bits, so seed 2^40 gave seed 0's key, and seeds >= 2^63 raised OverflowError. This is
+    what PRNGKey computes for seeds in [0, 2^32) (tests/train checks it), so every result
+    seeded there reproduces bit for bit, and it is injective over [0, 2^64).
+    """
+    seed = check_seed(seed)
+    return jnp.asarray(np.array([seed >> 32, seed & 0xFFFFFFFF], dtype=np.uint32))
+
+
 def agent_keys(seeds: Sequence[int]) -> jax.Array:
     """One PRNG key per agent, from its seed alone (so a vmapped agent equals a lone run)."""
-    return jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+    return jnp.stack([seed_key(s) for s in seeds])
 
 
 def index_population(hp: HParams, i: int) -> HParams:

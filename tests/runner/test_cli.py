@@ -75,12 +75,19 @@ class FakeTracker:
         pass
 
 
-def test_dry_run_then_replay(export_dir, tmp_path, capsys, monkeypatch):
+def _dry_run(monkeypatch, export_dir, log, cycles: int, *extra: str) -> list[str]:
+    """Drives ``cycles`` cycles with the fake lidar and tracker; returns the base arguments."""
     monkeypatch.setattr(hardware, "RplidarScanSource", FakeLidarSource)
     monkeypatch.setattr(hardware, "UdpPoseSource", FakeTracker)
+    args = [str(export_dir), "--goal", "1.5", "0.8", *DRIVE, "--dry-run", "--max-cycles"]
+    args.append(str(cycles))
+    assert cli.main([*args, "--log", str(log), "--rate", "50", *extra]) == 0
+    return args
+
+
+def test_dry_run_then_replay(export_dir, tmp_path, capsys, monkeypatch):
     log = tmp_path / "drive.jsonl"
-    args = [str(export_dir), "--goal", "1.5", "0.8", *DRIVE, "--dry-run", "--max-cycles", "6"]
-    assert cli.main([*args, "--log", str(log), "--rate", "50"]) == 0
+    args = _dry_run(monkeypatch, export_dir, log, 6)
     captured = capsys.readouterr()
     printed = captured.out.splitlines()
     assert len(printed) == 7 and printed[-1] == "[dry-run] STOP"
@@ -107,3 +114,60 @@ def test_dry_run_then_replay(export_dir, tmp_path, capsys, monkeypatch):
     log.write_text("\n".join(json.dumps(x) for x in [header, *cycles, footer]) + "\n")
     assert cli.main(["--replay", str(log), str(export_dir)]) == 2
     assert "is not the one the log was recorded with" in _error_line(capsys)
+
+
+# Issue 20 -----------------------------------------------------------------------------
+
+
+def test_car_refuses_an_export_with_edited_limits(export_copy, capsys, monkeypatch):
+    """v_max 1 → 5 in policy.json (hash recomputed, as a careful editor would): the car
+    refuses before touching any hardware, and no motor command is printed."""
+    from advisor_jax.runner.policy import metadata_sha256
+
+    opened = []
+    monkeypatch.setattr(hardware, "RplidarScanSource", lambda *a, **k: opened.append(a))
+    monkeypatch.setattr(hardware, "UdpPoseSource", lambda *a, **k: opened.append(a))
+    meta = json.loads((export_copy / "policy.json").read_text())
+    meta["control"]["v_max"] = 5.0
+    meta["metadata_sha256"] = metadata_sha256(meta)
+    (export_copy / "policy.json").write_text(json.dumps(meta))
+    args = [str(export_copy), "--goal", "1.5", "0.8", *DRIVE, "--dry-run", "--max-cycles", "3"]
+    assert cli.main(args) == 2
+    line = _error_line(capsys)
+    assert "control.v_max=5.0 differs from v_max=1.0 the actor was trained with" in line
+    assert capsys.readouterr().out == "" and not opened
+
+
+def test_replay_of_random_bytes_names_the_file(tmp_path, capsys):
+    log = tmp_path / "noise.jsonl"
+    log.write_bytes(bytes(range(256)) * 4)
+    assert cli.main(["--replay", str(log)]) == 2
+    assert f"{log}: not a loop log (not UTF-8 text" in _error_line(capsys)
+    log.write_text('[1, 2]\n{"type": "cycle"}\n')
+    assert cli.main(["--replay", str(log)]) == 2
+    assert f"{log}:1: not a JSON object" in _error_line(capsys)
+
+
+def test_replay_of_a_log_without_cycles_is_not_success(export_dir, tmp_path, capsys, monkeypatch):
+    log = tmp_path / "drive.jsonl"
+    _dry_run(monkeypatch, export_dir, log, 2)
+    capsys.readouterr()
+    header, *cycles, footer = [json.loads(x) for x in log.read_text().splitlines()]
+    log.write_text(json.dumps(header) + "\n")  # header only: the loop never ran a cycle
+    assert cli.main(["--replay", str(log)]) == 2
+    assert "no cycles to replay: the log holds only its header" in _error_line(capsys)
+    failed = [{**c, "ran": False} for c in cycles]  # every cycle lost a source
+    log.write_text("\n".join(json.dumps(x) for x in [header, *failed, footer]) + "\n")
+    assert cli.main(["--replay", str(log)]) == 2
+    assert "in all 2 cycles a source failed" in _error_line(capsys)
+    del cycles[1]["t"]
+    log.write_text("\n".join(json.dumps(x) for x in [header, *cycles, footer]) + "\n")
+    assert cli.main(["--replay", str(log)]) == 2
+    assert f"{log}: cycle record 1 is malformed (missing field 't')" in _error_line(capsys)
+
+
+def test_range_offset_other_than_training_is_warned(export_dir, tmp_path, capsys, monkeypatch):
+    _dry_run(monkeypatch, export_dir, tmp_path / "log.jsonl", 1, "--range-offset", "0.3")
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--range-offset 0.3 m differs from the 0.22 m the policy was trained with" in err
+    assert "reads 0.08 m nearer than in training" in err

@@ -21,7 +21,7 @@ from advisor_jax.runner.policy import Layer, config_hash, load_policy, mlp_forwa
 
 def test_round_trip_metadata(export_dir, policy, actor_params):
     meta = json.loads((export_dir / "policy.json").read_text())
-    assert meta["schema_version"] == 1
+    assert meta["schema_version"] == 2
     assert [(x["name"], x["in"], x["out"]) for x in meta["layers"]] == [
         ("hidden_0", 20, 48),
         ("hidden_1", 48, 48),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import io
 import json
@@ -11,14 +12,18 @@ import pytest
 
 from advisor_jax.contract import spec
 from advisor_jax.runner.errors import PolicyError
-from advisor_jax.runner.policy import config_hash, load_policy
+from advisor_jax.runner.policy import config_hash, load_policy, metadata_sha256
 
 
 def _meta(d):
     return json.loads((d / "policy.json").read_text())
 
 
-def _write_meta(d, meta):
+def _write_meta(d, meta, *, restamp: bool = True):
+    """Writes policy.json; ``restamp`` also recomputes metadata_sha256, as an editor who knows
+    the format would, so that the checks behind that hash are reached."""
+    if restamp and "metadata_sha256" in meta:
+        meta = {**meta, "metadata_sha256": metadata_sha256(meta)}
     (d / "policy.json").write_text(json.dumps(meta))
 
 
@@ -122,7 +127,7 @@ def test_layer_sizes_must_match_json(export_copy):
         load_policy(export_copy)
 
 
-@pytest.mark.parametrize("version", [2, 0, None, "1"])
+@pytest.mark.parametrize("version", [3, 0, None, "1", True])
 def test_wrong_schema(export_copy, version):
     meta = _meta(export_copy)
     meta["schema_version"] = version
@@ -191,3 +196,83 @@ def test_act_validates_observations(policy):
     assert np.isinf(np.vdot(huge, huge))  # the fast check overflows; the slow one lets it go
     assert np.isfinite(policy.act(huge)).all() and np.isfinite(policy.act(-huge)).all()
     assert ((out[:, 0] >= 0) & (out[:, 0] <= 1) & (np.abs(out[:, 1]) <= 1)).all()
+
+
+# Issue 20, case 1: every field of policy.json that changes what the car does is verified.
+# (section, key, edited value); the test export was trained with v_max 1, omega_max 2,
+# dt 0.05, lidar offset 0.22 and max_range 1.
+CAR_FIELDS = [
+    ("control", "v_max", 5.0),
+    ("control", "omega_max", 30.0),
+    ("control", "dt", 0.5),
+    ("sensors", "lidar_range_offset", 0.0),
+    ("sensors", "max_range", 2.0),
+    ("observation", "max_range", 0.5),
+    ("heads", 1, {"name": "omega", "activation": "tanh", "range": [-1.0, 1.0], "scale": 9.0}),
+    ("control", "action_low", [0.0, -2.0]),
+    ("sensors", "sonar_directions_deg", [0.0] * 16),
+]
+
+
+def _edit(meta, section, key, value):
+    meta[section][key] = value
+    return meta
+
+
+def test_export_covers_its_metadata_with_a_hash(export_copy):
+    meta = _meta(export_copy)
+    assert meta["schema_version"] == 2
+    assert meta["metadata_sha256"] == metadata_sha256(meta)
+    meta["created"] = "2000-01-01T00:00:00+00:00"  # even a field the car ignores
+    _write_meta(export_copy, meta, restamp=False)
+    with pytest.raises(PolicyError, match="metadata_sha256 .* policy.json was edited"):
+        load_policy(export_copy)
+
+
+@pytest.mark.parametrize(("section", "key", "value"), CAR_FIELDS)
+def test_edited_car_field_is_refused(export_copy, section, key, value):
+    meta = _edit(_meta(export_copy), section, key, value)
+    _write_meta(export_copy, meta, restamp=False)
+    with pytest.raises(PolicyError, match="policy.json was edited after export"):
+        load_policy(export_copy)
+    # With the file hash recomputed, the cross-check against the trained env still refuses.
+    _write_meta(export_copy, meta)
+    with pytest.raises(PolicyError, match="differs from"):
+        load_policy(export_copy)
+
+
+@pytest.mark.parametrize(("section", "key", "value"), CAR_FIELDS)
+def test_schema_1_export_is_checked_against_training(export_copy, section, key, value):
+    """A schema-1 export (no metadata_sha256) still loads, and its car fields are checked."""
+    meta = _meta(export_copy)
+    meta["schema_version"] = 1
+    del meta["metadata_sha256"]
+    _write_meta(export_copy, meta)
+    assert load_policy(export_copy).v_max == 1.0
+    _write_meta(export_copy, _edit(meta, section, key, value))
+    with pytest.raises(PolicyError, match="differs from"):
+        load_policy(export_copy)
+
+
+def test_limit_beyond_training_names_both_values(export_copy):
+    original = _meta(export_copy)
+    _write_meta(export_copy, _edit(copy.deepcopy(original), "control", "v_max", 5.0))
+    with pytest.raises(
+        PolicyError,
+        match=r"control.v_max=5.0 differs from v_max=1.0 the actor was trained with "
+        r"\(env.v_max\) \(beyond the trained limit\)",
+    ):
+        load_policy(export_copy)
+    _write_meta(export_copy, _edit(original, "control", "dt", 0.5))
+    with pytest.raises(PolicyError, match=r"control.dt=0.5 differs from dt=0.05"):
+        load_policy(export_copy)
+
+
+def test_committed_schema_1_export_still_loads():
+    """results/policy_physical_atd3_afdp predates metadata_sha256 and passes every check."""
+    from pathlib import Path
+
+    policy = load_policy(Path(__file__).parents[2] / "results" / "policy_physical_atd3_afdp")
+    assert policy.meta["schema_version"] == 1
+    limits = (policy.v_max, policy.omega_max, policy.dt, policy.range_offset)
+    assert limits == (1.0, 3.0, 0.05, 0.22)
