@@ -17,14 +17,13 @@ Writes ``<out>.md`` (tables) and ``<out>.json`` (all numbers, device, command, d
 from __future__ import annotations
 
 import dataclasses
-import datetime
+import functools
 import json
 import pathlib
-import platform
 import re
 import sys
-import time
 
+import common
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -58,19 +57,6 @@ class Args:
     """Output path without extension: writes .md and .json."""
     date: str = ""
     """Date to record (default: today)."""
-
-
-def _time(fn, *args, repeats: int) -> tuple[float, float]:
-    """(compile + first run seconds, best of ``repeats`` run seconds)."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - t0)
-    return first, best
 
 
 def _cost(fn, *args) -> dict:
@@ -139,7 +125,7 @@ def bench_step(env, n: int, steps: int, repeats: int) -> dict:
         state, done = jax.lax.scan(body, state, None, length=steps)
         return state, jnp.mean(done)
 
-    first, best = _time(run, state, action, repeats=repeats)
+    first, best = common.first_and_best(lambda: run(state, action), repeats)
     _, done_rate = run(state, action)
     per_env_state = sum(x.nbytes for x in jax.tree_util.tree_leaves(state)) / n
     cost = _cost(jax.jit(step), state, action)  # one step: XLA counts a scan body once
@@ -161,7 +147,7 @@ def bench_step(env, n: int, steps: int, repeats: int) -> dict:
 def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
     """Parts of a step, each in the same scan shape as the step: the sensor pass the env
     uses (pose written to qpos, ``mjx.kinematics`` + ``mjx.sensor_pos``), the alternative
-    of DESIGN.md (joint velocities, then a full ``mjx.step``), and ``reset`` alone."""
+    of our first design (joint velocities, then a full ``mjx.step``), and ``reset`` alone."""
     from envs.mjcf import mjx
 
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
@@ -209,21 +195,9 @@ def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
     ):
         if "mjx.step" in name and env.procedural:
             continue  # needs the per-env model; the fixed-arena comparison suffices
-        _, best = _time(fn, *args, repeats=repeats)
+        _, best = common.first_and_best(functools.partial(fn, *args), repeats)
         out[name] = {"steps_per_s": n * steps / best, "seconds": best}
     return out
-
-
-def bench_ceiling(repeats: int) -> dict:
-    """Device-to-device copy bandwidth and fp32 matmul rate (JAX default precision)."""
-    x = jax.random.uniform(jax.random.PRNGKey(1), (256, 1024, 1024))  # 1 GiB, not zeros
-    _, t_add = _time(jax.jit(lambda a: a + 1.0), x, repeats=repeats)
-    _, t_copy = _time(jax.jit(lambda a: a.copy()), x, repeats=repeats)
-    t_copy = min(t_add, t_copy)
-    a = jax.random.normal(jax.random.PRNGKey(2), (8192, 8192))
-    matmul = jax.jit(lambda p, q: p @ q)
-    _, t_mm = _time(matmul, a, a, repeats=repeats)
-    return {"copy_bytes_per_s": 2 * x.nbytes / t_copy, "matmul_flops_per_s": 2 * 8192**3 / t_mm}
 
 
 def check_parity(env, poses: int = 100) -> float:
@@ -248,15 +222,13 @@ def check_parity(env, poses: int = 100) -> float:
 
 def main(args: Args) -> dict:
     env = envs.make_env(args.arena)
-    device = jax.devices()[0]
+    where = common.provenance()
     result = {
+        **where,
         "arena": args.arena,
-        "device": f"{device.platform}: {device.device_kind}",
-        "host": platform.node(),
-        "cpu_count": __import__("os").cpu_count(),
-        "jax": jax.__version__,
-        "date": args.date or datetime.date.today().isoformat(),
-        "command": "python " + " ".join(sys.argv),
+        "device": f"{where['backend']}: {where['device']}",  # the format of the runs recorded
+        "date": args.date or where["date"],
+        "command": common.command_line("experiments/bench_env.py", sys.argv[1:]),
         "steps_per_scan": args.steps,
         "rows": [],
     }
@@ -280,7 +252,10 @@ def main(args: Args) -> dict:
         result["breakdown"] = bench_parts(env, max(args.envs), args.steps, args.repeats)
         print("breakdown", result["breakdown"], flush=True)
     if args.ceiling:
-        result["ceiling"] = bench_ceiling(args.repeats)
+        result["ceiling"] = {  # 1 GiB; 8192² fp32 at JAX's default precision
+            "copy_bytes_per_s": common.copy_ceiling(2**30, args.repeats),
+            "matmul_flops_per_s": common.matmul_ceiling(8192, args.repeats),
+        }
         print("ceiling", result["ceiling"], flush=True)
     write(result, pathlib.Path(args.out), append=args.append)
     return result
@@ -305,7 +280,7 @@ def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     ]
     for run in runs:
         lines += _section(run)
-    atomic_write_text(out.with_suffix(".md"), "\n".join(lines) + "\n")
+    common.write_markdown(out.with_suffix(".md"), lines)
 
 
 def _section(result: dict) -> list[str]:
@@ -317,16 +292,16 @@ def _section(result: dict) -> list[str]:
         f"date {result['date']}; {result['steps_per_scan']} steps per scan",
         f"- command: `{result['command']}`",
         "",
-        "| envs | M steps/s | done/step | state B/env | kernel I/O B/step | XLA FLOP/step "
-        "| XLA B accessed/step |",
-        "|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in result["rows"]:
-        lines.append(
-            f"| {r['envs']} | {r['steps_per_s'] / 1e6:.3f} | {r['done_per_step']:.4f} | "
-            f"{r['state_bytes_per_env']:.0f} | {r['kernel_io_bytes_per_step']:.3g} | "
-            f"{r['xla_flops_per_step']:.3g} | {r['xla_bytes_per_step']:.3g} |"
-        )
+        *common.markdown_table(
+            ("envs", "M steps/s", "done/step", "state B/env", "kernel I/O B/step",
+             "XLA FLOP/step", "XLA B accessed/step"),
+            [(r["envs"], r["steps_per_s"] / 1e6, r["done_per_step"], r["state_bytes_per_env"],
+              r["kernel_io_bytes_per_step"], r["xla_flops_per_step"], r["xla_bytes_per_step"])
+             for r in result["rows"]],
+            formats=("", ".3f", ".4f", ".0f", ".3g", ".3g", ".3g"),
+            align="r",
+        ),
+    ]  # fmt: skip
     if "breakdown" in result:
         lines += ["", "Parts of a step at the largest size, same scan shape:", ""]
         for name, part in result["breakdown"].items():

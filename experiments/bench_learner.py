@@ -1,9 +1,10 @@
 """Learner throughput: vmapped ADDPG/ATD3 updates per second against a matmul ceiling.
 
-DESIGN.md's performance model says the learner, not the simulator, is the cost: a paper
-agent is ~10^5 updates of batch 1000. This script times the jitted, vmapped update of
-``--agents`` agents (replay sampling + critic step + actor step every d-th update, the
-exact functions the trainer runs, inside one ``lax.scan``) and, in the same process,
+The learner, not the simulator, is the cost of training (docs/architecture.md, "Training,
+populations and scale"): a paper agent is ~10^5 updates of batch 1000. This script times
+``Learner.update`` of ``--agents`` vmapped agents (replay sampling + critic step + actor step
+every d-th update: the one update step training runs) inside one ``lax.scan`` and, in the
+same process,
 two ceilings: a large fp32 matmul at JAX's default precision and a device-to-device copy.
 FLOPs per update come from XLA's own cost analysis of the compiled update and from an
 analytic count (printed side by side).
@@ -18,21 +19,19 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
-import platform
 import sys
-import time
 from pathlib import Path
 
+import common
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.config import HParams, parse_agent
-from advisor_jax.fileio import atomic_write_json, atomic_write_text
-from advisor_jax.learner import make_learner
-from advisor_jax.replay import Transition, replay_add, replay_init, replay_sample
-from advisor_jax.runner import spec
+from advisor_jax.agent.config import HParams, parse_agent
+from advisor_jax.agent.learner import make_learner
+from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
+from advisor_jax.contract import spec
+from advisor_jax.fileio import atomic_write_json
 
 
 def dense_macs(sizes: list[tuple[int, int]]) -> int:
@@ -79,6 +78,7 @@ def xla_flops_per_update(cfg, learner, replay) -> float:
 
 
 def make_update_loop(cfg, n_updates: int):
+    """``n_updates`` calls of ``Learner.update``, the exact step training runs, in a scan."""
     learner = make_learner(cfg)
     hp = HParams()
 
@@ -86,14 +86,7 @@ def make_update_loop(cfg, n_updates: int):
         def body(carry, u):
             state, key = carry
             key, k_sample, k_critic = jax.random.split(key, 3)
-            batch = replay_sample(replay, k_sample, cfg.batch_size)
-            state, _ = learner.critic_step(state, batch, k_critic, hp)
-            state = jax.lax.cond(
-                u % cfg.delay == 0,
-                lambda s: learner.actor_step(s, batch, hp)[0],
-                lambda s: s,
-                state,
-            )
+            state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u)
             return (state, key), None
 
         (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), jnp.arange(n_updates))
@@ -102,11 +95,23 @@ def make_update_loop(cfg, n_updates: int):
     return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0)
 
 
+def time_update_loop(loop, states, replays, keys) -> tuple[float, float]:
+    """(seconds of the first call, best of the 3 after it) of ``make_update_loop``'s loop,
+    which donates ``states``: every call runs on the previous call's output."""
+
+    def call():
+        nonlocal states
+        states = loop(states, replays, keys)
+        return states
+
+    return common.first_and_best(call, 3)
+
+
 def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     """Seconds per agent-iteration of each piece of an update, vmapped over ``n_agents``."""
     import optax
 
-    from advisor_jax.networks import Critic, apply_critics
+    from advisor_jax.agent.networks import Critic, apply_critics
 
     learner = make_learner(cfg)
     hp = HParams()
@@ -144,8 +149,7 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
             return jax.lax.scan(body, jnp.float32(0), jnp.arange(n_iters))[0]
 
         f = jax.jit(jax.vmap(loop))
-        jax.block_until_ready(f(states, replays, batches, keys))
-        best = timeit(lambda f=f: f(states, replays, batches, keys), 3)
+        _, best = common.first_and_best(lambda f=f: f(states, replays, batches, keys), 3)
         rows.append((name, best / (n_agents * n_iters)))
         print(f"  {name:15s} {1e6 * rows[-1][1]:8.1f} µs per agent-iteration")
     return rows
@@ -162,29 +166,6 @@ def fill_replay(capacity: int, key) -> object:
         terminal=jnp.zeros(capacity),
     )
     return replay_add(replay_init(capacity), data)
-
-
-def timeit(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn())
-        best = min(best, time.perf_counter() - t)
-    return best
-
-
-def matmul_ceiling(n: int) -> float:
-    a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32)
-    f = jax.jit(lambda x: x @ x)
-    jax.block_until_ready(f(a))
-    return 2 * n**3 / timeit(lambda: f(a), 5) / 1e12
-
-
-def copy_ceiling(n_bytes: int) -> float:
-    x = jnp.ones(n_bytes // 4, jnp.float32)
-    f = jax.jit(lambda v: v * 1.0 + 0.0)  # one read, one write
-    jax.block_until_ready(f(x))
-    return 2 * n_bytes / timeit(lambda: f(x), 5) / 1e9
 
 
 def main() -> None:
@@ -205,10 +186,11 @@ def main() -> None:
         overrides = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
                          buffer_size=4096, batch_size=128)  # fmt: skip
     cfg = parse_agent(args.agent, **overrides)
-    device = jax.devices()[0]
-    print(f"device: {device.device_kind} ({jax.default_backend()}), jax {jax.__version__}")
-    ceiling_tflops = matmul_ceiling(2048 if args.small else 8192)
-    copy_gbs = copy_ceiling((64 if args.small else 2048) * 2**20)
+    where = common.provenance()
+    device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
+    print(f"device: {device}")
+    ceiling_tflops = common.matmul_ceiling(2048 if args.small else 8192) / 1e12
+    copy_gbs = common.copy_ceiling((64 if args.small else 2048) * 2**20) / 1e9
     print(f"ceiling: fp32 matmul {ceiling_tflops:.1f} TFLOP/s, copy {copy_gbs:.0f} GB/s")
     analytic = analytic_flops_per_update(cfg) * cfg.batch_size
 
@@ -223,14 +205,7 @@ def main() -> None:
         if not rows:
             one_replay = jax.tree_util.tree_map(lambda x: x[0], replays)
             xla_flops = xla_flops_per_update(cfg, learner, one_replay)
-        t0 = time.perf_counter()
-        states = jax.block_until_ready(loop(states, replays, keys))
-        first = time.perf_counter() - t0
-        best = float("inf")
-        for _ in range(3):
-            t = time.perf_counter()
-            states = jax.block_until_ready(loop(states, replays, keys))
-            best = min(best, time.perf_counter() - t)
+        first, best = time_update_loop(loop, states, replays, keys)
         ups = n_agents * args.updates / best
         tflops = ups * analytic / 1e12
         row = dict(agents=n_agents, agent_updates_per_s=ups, updates_per_s_per_agent=ups / n_agents,
@@ -246,13 +221,19 @@ def main() -> None:
 
     pieces = breakdown(cfg, args.breakdown, args.updates) if args.breakdown else []
     result = dict(
-        date=datetime.date.today().isoformat(), device=device.device_kind,
-        breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
-        backend=jax.default_backend(), host=platform.node(), jax=jax.__version__,
+        **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, copy_gbs=copy_gbs, rows=rows,
     )  # fmt: skip
     atomic_write_json(args.out / "bench_learner.json", result)
+    table = common.markdown_table(
+        ("agents", "agent-updates/s", "TFLOP/s", "% of matmul ceiling",
+         "GFLOP/update (analytic)", "GFLOP/update (XLA)"),
+        [(r["agents"], r["agent_updates_per_s"], r["tflops"], r["pct_ceiling"],
+          r["flops_per_update_analytic"] / 1e9, r["flops_per_update_xla"] / 1e9) for r in rows],
+        formats=("", ",.0f", ".2f", ".1f", ".2f", ".2f"),
+        align="r",
+    )  # fmt: skip
     lines = [
         "# Learner throughput",
         "",
@@ -260,21 +241,10 @@ def main() -> None:
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
         "updates per jitted call (replay sampling + critic step + delayed actor step).",
         "",
-        f"Device: {device.device_kind} ({jax.default_backend()}), jax {jax.__version__}, "
-        f"{result['date']}. Ceilings measured in the same process: fp32 matmul "
+        f"Device: {device}, {result['date']}. Ceilings measured in the same process: fp32 matmul "
         f"(default precision) {ceiling_tflops:.1f} TFLOP/s, device copy {copy_gbs:.0f} GB/s.",
         "",
-        "| agents | agent-updates/s | TFLOP/s | % of matmul ceiling "
-        "| GFLOP/update (analytic) | GFLOP/update (XLA) |",
-        "|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in rows:
-        lines.append(
-            f"| {r['agents']} | {r['agent_updates_per_s']:,.0f} | {r['tflops']:.2f} | "
-            f"{r['pct_ceiling']:.1f} | {r['flops_per_update_analytic'] / 1e9:.2f} | "
-            f"{r['flops_per_update_xla'] / 1e9:.2f} |"
-        )
-    lines += [
+        *table,
         "",
         "TFLOP/s uses the analytic count. XLA's count leaves out work done in library calls "
         "(cuBLAS GEMMs) and so changes with the kernels the autotuner picks; it is a lower bound.",
@@ -286,12 +256,11 @@ def main() -> None:
             f"Pieces of an update at {args.breakdown} agents (µs per agent and call; the "
             f"whole update takes {per_update:.0f} µs at {rows[-1]['agents']} agents):",
             "",
-            "| piece | µs |",
-            "|---|---:|",
-            *[f"| {k} | {1e6 * v:.1f} |" for k, v in pieces],
+            *common.markdown_table(("piece", "µs"), ((k, 1e6 * v) for k, v in pieces), ("", ".1f")),
         ]
-    lines += ["", f"Command: `python experiments/bench_learner.py {' '.join(sys.argv[1:])}`", ""]
-    atomic_write_text(args.out / "bench_learner.md", "\n".join(lines))
+    command = common.command_line("experiments/bench_learner.py", sys.argv[1:])
+    lines += ["", f"Command: `{command}`", ""]
+    common.write_markdown(args.out / "bench_learner.md", lines)
     print(np.round([r["agent_updates_per_s"] for r in rows]))
 
 

@@ -15,8 +15,9 @@ Measures, per call, after a warm-up (time.perf_counter_ns around each call):
 * ``run_loop`` itself at 20 Hz on in-memory sources, with and without the warm-up: the
   ``compute_ms`` it logs per cycle (sources → watchdog, observation, MLP, drive → motor).
 
-The policy is a freshly initialised paper-size actor exported with ``advisor_jax.export``
-in a child process (so this script needs JAX, but the timed process never imports it).
+The policy is a freshly initialised paper-size actor exported with ``advisor_jax.deploy.export``
+in a child process (``common.load_paper_actor``: this script needs JAX, but the timed process
+never imports it).
 Writes a markdown table.
 
     python experiments/bench_runner.py [--iters 4000] [--blocks 5] [--loop-cycles 400] \
@@ -30,108 +31,25 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as advisor-jax-car sets it, before numpy
 
 import argparse  # noqa: E402
-import math  # noqa: E402
-import platform  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 import timeit  # noqa: E402
 import types  # noqa: E402
 
+import common  # noqa: E402
 import numpy as np  # noqa: E402
 
-from advisor_jax.fileio import atomic_write_text  # noqa: E402
+from advisor_jax.contract.zones import reduce_to_zones  # noqa: E402
 from advisor_jax.runner.cyclelog import JsonlLog, read_log  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive  # noqa: E402
 from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
 from advisor_jax.runner.observation import (  # noqa: E402
     ObservationBuilder,
     ObservationConfig,
-    Pose,
-    Scan,
     free_distances,
     scan_to_robot_frame,
     zone_minima_mm,
     zone_table,
 )
-from advisor_jax.runner.policy import load_policy  # noqa: E402
-from advisor_jax.runner.zones import reduce_to_zones  # noqa: E402
-
-
-def export_paper_actor(out_dir: str) -> None:
-    import jax
-
-    import envs
-    from advisor_jax.export import export_policy
-    from advisor_jax.networks import Actor, init_actor
-
-    hidden = (600, 300)
-    params = init_actor(Actor(hidden), jax.random.key(0))
-    rng = np.random.default_rng(1)
-    golden = rng.uniform(0.0, 1.0, (64, 20)).astype(np.float32)
-    export_policy(
-        params,
-        out_dir,
-        actor_hidden=hidden,
-        env_meta=envs.make_env("physical").metadata(),  # the arena the car's policy trains in
-        config_meta={"preset": "paper", "agent": "ATD3+AfDP"},
-        golden_obs=golden,
-    )
-
-
-def load_paper_actor():
-    """The paper-size actor, exported in a child process (JAX never enters this one) and
-    loaded and verified as the car loads it."""
-    with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run([sys.executable, __file__, "--export-only", tmp], check=True)
-        policy = load_policy(tmp)
-    assert "jax" not in sys.modules
-    return policy
-
-
-def write_report(path: str, lines: list[str]) -> None:
-    atomic_write_text(path, "\n".join(lines))
-    print(f"wrote {path}", file=sys.stderr)
-
-
-def synthetic_scan(rng: np.random.Generator, stamp: float) -> Scan:
-    """200 readings over one turn, ~5 % invalid (0 mm), at the resolution the ``rplidar``
-    package reports: angle in 1/64 degree (clockwise), distance in 1/4 mm."""
-    angles = np.floor(((np.arange(200) * 1.8 + rng.uniform(0.0, 1.8, 200)) % 360.0) * 64) / 64
-    dist = np.floor(rng.uniform(150.0, 6000.0, 200) * 4) / 4
-    dist[rng.random(200) < 0.05] = 0.0
-    quality = np.full(200, 15.0)
-    return Scan(np.stack([quality, angles, dist], axis=1), stamp)
-
-
-def swinging_poses(n: int) -> list[Pose]:
-    """Tracked poses of a car swinging along x at up to 0.5 m/s, 20 Hz. Made up front: the
-    tracker thread builds each Pose when it arrives, outside the control cycle."""
-    return [Pose(math.sin(0.05 * i), 0.1, 0.2, 0.05 * i, 0.0) for i in range(n)]
-
-
-def timed(
-    cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None
-) -> dict[str, np.ndarray]:
-    """Per-call wall-clock times in µs of every case, the cases interleaved call by call.
-    ``pause`` (s): sleep before each round, as the control loop sleeps between cycles;
-    ``before(i)``: untimed call after the sleep (the loop's warm-up)."""
-    for i in range(warmup):
-        for fn in cases.values():
-            fn(i)
-    times = {name: np.empty(iters) for name in cases}
-    wall_ns, sleep = time.perf_counter_ns, time.sleep
-    for i in range(iters):
-        if pause:
-            sleep(pause)
-        if before is not None:
-            before(warmup + i)
-        for name, fn in cases.items():
-            t0 = wall_ns()
-            fn(warmup + i)
-            times[name][i] = (wall_ns() - t0) / 1e3
-    return times
 
 
 class _Cycling:
@@ -174,45 +92,6 @@ def loop_compute_us(controller: Controller, scans: list, poses: list, cycles: in
     return np.array(times)
 
 
-def cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def virtualisation() -> str:
-    """ "KVM guest" and the like from lscpu's hypervisor line, "bare metal" when none."""
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
-    except (OSError, subprocess.SubprocessError):
-        return "unknown virtualisation"
-    for line in out.splitlines():
-        if line.startswith("Hypervisor vendor:"):
-            return line.split(":", 1)[1].strip() + " guest"
-    return "bare metal" if "cpu" in out.lower() else "unknown virtualisation"
-
-
-def reproduce_command(script: str, parser: argparse.ArgumentParser, args) -> str:
-    """The command line that reproduces this run: the non-default options, and the ``nice``
-    and ``taskset`` it ran under."""
-    command = f"python {script}" + "".join(
-        f" --{k.replace('_', '-')} {v}"
-        for k, v in vars(args).items()
-        if k not in ("out", "export_only") and v != parser.get_default(k)
-    )
-    if os.nice(0) != 0:
-        command = f"nice -n {os.nice(0)} {command}"
-    cpus = sorted(os.sched_getaffinity(0))
-    if len(cpus) < (os.cpu_count() or 0):
-        command = f"taskset -c {','.join(map(str, cpus))} {command}"
-    return command
-
-
 def stats(name: str, times: np.ndarray, blocks: list[np.ndarray] | None = None) -> tuple:
     p50, p90, p99 = np.percentile(times, [50, 90, 99])
     spread = ""
@@ -232,15 +111,11 @@ def main() -> None:
     parser.add_argument("--sleep-iters", type=int, default=400, help="calls after a 50 ms sleep")
     parser.add_argument("--loop-cycles", type=int, default=400, help="cycles of each run_loop row")
     parser.add_argument("--out", default="results/bench_runner.md")
-    parser.add_argument("--export-only", metavar="DIR", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.export_only:
-        export_paper_actor(args.export_only)
-        return
 
-    policy = load_paper_actor()
+    policy = common.load_paper_actor()
     rng = np.random.default_rng(0)
-    scans = [synthetic_scan(rng, 0.0) for _ in range(64)]
+    scans = [common.synthetic_scan(rng, 0.0) for _ in range(64)]
     cfg = ObservationConfig(range_offset=policy.range_offset, bounds=policy.bounds)
     controller = Controller(
         policy,
@@ -249,7 +124,9 @@ def main() -> None:
         LoopConfig(max_scan_age=1e9, max_pose_age=1e9),
     )
 
-    poses = swinging_poses(max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles))
+    poses = common.swinging_poses(
+        max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles)
+    )
 
     obs0 = ObservationBuilder(cfg, (2.0, 1.0)).build(scans[0], poses[0])
     # Each case gets its own builder, reset before every timed run (whose calls count from
@@ -266,7 +143,7 @@ def main() -> None:
     def run(cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None) -> dict:
         for b in (*builders, controller.builder):
             b.reset()
-        return timed(cases, iters, warmup, pause, before)
+        return common.per_call_us(cases, iters, warmup, pause, before)
 
     pieces = {
         "obs (200-point scan → 20-d)": lambda i: builders[0].build(scans[i % 64], poses[i]),
@@ -322,16 +199,19 @@ def main() -> None:
     target = rows[0]
     met = target[4] <= 200.0
     threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    command = reproduce_command("experiments/bench_runner.py", parser, args)
+    command = common.command_line(
+        "experiments/bench_runner.py", common.changed_options(parser, args), scheduling=True
+    )
+    where = common.provenance(with_jax=False)
     lines = [
         "# Runner latency (numpy-only car runner)",
         "",
-        f"Date: {time.strftime('%Y-%m-%d')}. Machine: {cpu_name()}, {os.cpu_count()} cores "
-        f"({virtualisation()}), Linux, "
-        f"Python {platform.python_version()}, numpy {np.__version__} (OpenBLAS), BLAS threads "
+        f"Date: {where['date']}. Machine: {where['cpu']}, {where['cpu_count']} cores "
+        f"({common.virtualisation()}), Linux, "
+        f"Python {where['python']}, numpy {where['numpy']} (OpenBLAS), BLAS threads "
         f"env {threads} (advisor-jax-car sets OPENBLAS_NUM_THREADS=1 the same way).",
         f"Load average (1 min) before/after: {load_before:.1f} / {load_after:.1f} on "
-        f"{os.cpu_count()} cores. Speed probe (one numpy add of 200 float64, best of 20 x "
+        f"{where['cpu_count']} cores. Speed probe (one numpy add of 200 float64, best of 20 x "
         f"2000) before/after: {add_before:.2f} / {add_after:.2f} µs.",
         f"Calls: {args.iters} per row and block after {args.warmup} warm-up calls; the first row "
         f"pools {args.blocks} blocks (its last column: the lowest and highest block p99); the "
@@ -340,9 +220,11 @@ def main() -> None:
         "",
         f"Command: `{command}`",
         "",
-        "| what (µs per call, wall clock) | calls | p50 | p90 | p99 | max | block p99s |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
-        *("| {} | {} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {} |".format(*r) for r in rows),
+        *common.markdown_table(
+            ("what (µs per call, wall clock)", "calls", "p50", "p90", "p99", "max", "block p99s"),
+            rows,
+            formats=("", "", ".1f", ".1f", ".1f", ".1f", ""),
+        ),
         "",
         f"**Target p99 ≤ 200 µs per control cycle (observation + MLP): {target[4]:.1f} µs, "
         f"{'met' if met else 'missed'}** (back to back, {args.blocks} blocks pooled).",
@@ -374,7 +256,7 @@ def main() -> None:
         "that does nothing, with the loop's JSONL log written as on the car.",
         "",
     ]
-    write_report(args.out, lines)
+    common.write_markdown(args.out, lines)
 
 
 if __name__ == "__main__":

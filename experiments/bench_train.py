@@ -16,19 +16,42 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
-import platform
 import sys
-import time
 from pathlib import Path
 
-import jax
+import common
 import jax.numpy as jnp
 
-from advisor_jax.config import preset
-from advisor_jax.fileio import atomic_write_json, atomic_write_text
-from advisor_jax.run import population_functions
-from advisor_jax.sweep import agent_keys, build_population
+from advisor_jax.agent.config import preset
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.host_loop import population_functions
+from advisor_jax.training.population import agent_keys, build_population
+
+
+def bench(args: argparse.Namespace, n: int) -> dict:
+    """Agent env-steps/s of ``n`` agents: best of ``args.repeats`` chunks after a warm-up."""
+    cfg, hp = preset(args.preset, args.agent)
+    # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
+    cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
+    _, init_fn, chunk_fn = population_functions(cfg)
+    hp, _ = build_population(hp, {}, seeds=list(range(n)))
+    state, step = init_fn(agent_keys(list(range(n)))), 0
+
+    def chunk():
+        nonlocal state, step
+        state, _ = chunk_fn(state, hp, jnp.int32(step))
+        step += args.chunk
+        return state
+
+    def warm_up():  # compile + the first steps, before the buffer holds a batch
+        while step * cfg.envs_per_agent < cfg.agent.warmup + args.chunk:
+            chunk()
+        return state
+
+    _, warmup = common.run_timed(warm_up)
+    best = common.best_of(chunk, args.repeats)
+    sps = n * args.chunk * cfg.envs_per_agent / best
+    return dict(agents=n, agent_steps_per_s=sps, seconds_per_chunk=best, warmup_s=warmup)
 
 
 def main() -> None:
@@ -41,57 +64,35 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()
 
-    device = jax.devices()[0]
-    print(f"device: {device.device_kind} ({jax.default_backend()}), jax {jax.__version__}")
+    where = common.provenance()
+    device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
+    print(f"device: {device}")
     rows = []
     for n in args.agents:
-        cfg, hp = preset(args.preset, args.agent)
-        # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
-        cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
-        _, init_fn, chunk_fn = population_functions(cfg)
-        hp, _ = build_population(hp, {}, seeds=list(range(n)))
-        state = init_fn(agent_keys(list(range(n))))
-        t0 = time.perf_counter()
-        step = 0
-        while step * cfg.envs_per_agent < cfg.agent.warmup + args.chunk:
-            state, _ = chunk_fn(state, hp, jnp.int32(step))
-            step += args.chunk
-        jax.block_until_ready(state)
-        warmup = time.perf_counter() - t0
-        best = float("inf")
-        for _ in range(args.repeats):
-            t = time.perf_counter()
-            state, _ = chunk_fn(state, hp, jnp.int32(step))
-            jax.block_until_ready(state)
-            best = min(best, time.perf_counter() - t)
-            step += args.chunk
-        sps = n * args.chunk * cfg.envs_per_agent / best
-        rows.append(dict(agents=n, agent_steps_per_s=sps, seconds_per_chunk=best, warmup_s=warmup))
-        print(f"agents {n:4d}: {sps:10.0f} agent env-steps/s, warm-up {warmup:.1f} s")
+        rows.append(bench(args, n))
+        print(
+            f"agents {n:4d}: {rows[-1]['agent_steps_per_s']:10.0f} agent env-steps/s, "
+            f"warm-up {rows[-1]['warmup_s']:.1f} s"
+        )
 
-    result = dict(
-        date=datetime.date.today().isoformat(), device=device.device_kind,
-        backend=jax.default_backend(), host=platform.node(), jax=jax.__version__,
-        preset=args.preset, agent=args.agent, chunk=args.chunk, rows=rows,
-    )  # fmt: skip
+    result = dict(**where, preset=args.preset, agent=args.agent, chunk=args.chunk, rows=rows)
     atomic_write_json(args.out / "bench_train.json", result)
     lines = [
         "# Training throughput (full step: env + advisor + selector + update)",
         "",
         f"{args.agent}, preset `{args.preset}`, {args.chunk} env steps per jitted chunk; "
-        f"{device.device_kind} ({jax.default_backend()}), jax {jax.__version__}, {result['date']}.",
+        f"{device}, {result['date']}.",
         "",
-        "| agents | agent env-steps/s | s per chunk |",
-        "|---:|---:|---:|",
-        *[
-            f"| {r['agents']} | {r['agent_steps_per_s']:,.0f} | {r['seconds_per_chunk']:.3f} |"
-            for r in rows
-        ],
+        *common.markdown_table(
+            ("agents", "agent env-steps/s", "s per chunk"),
+            [(r["agents"], r["agent_steps_per_s"], r["seconds_per_chunk"]) for r in rows],
+            formats=("", ",.0f", ".3f"),
+            align="r",
+        ),
         "",
-        f"Command: `python experiments/bench_train.py {' '.join(sys.argv[1:])}`",
-        "",
+        f"Command: `{common.command_line('experiments/bench_train.py', sys.argv[1:])}`",
     ]
-    atomic_write_text(args.out / "bench_train.md", "\n".join(lines))
+    common.write_markdown(args.out / "bench_train.md", lines)
 
 
 if __name__ == "__main__":

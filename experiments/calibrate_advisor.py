@@ -17,22 +17,19 @@ arenas. This script measures it and writes ``results/advisor.md`` and ``.json``:
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import json
-import os
 import pathlib
-import platform
 import sys
-import time
 
+import common
 import jax
 import numpy as np
 import tyro
 
 import envs
-from advisor_jax.advisor import advisor_action
-from advisor_jax.evaluate import make_evaluate, summary
-from advisor_jax.fileio import atomic_write_json, atomic_write_text
+from advisor_jax.agent.advisor import advisor_action, arena_advisor
+from advisor_jax.evaluation.evaluate import make_evaluate, summary
+from advisor_jax.fileio import atomic_write_json
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,10 +59,11 @@ def run(arena: str, episodes: int, seeds: tuple[int, ...], **overrides) -> list[
     evaluate_fn = jax.jit(make_evaluate(env, _advisor, episodes))
     rows = []
     for seed in seeds:
-        t0 = time.perf_counter()
-        metrics = evaluate_fn(env.advisor_params, jax.random.PRNGKey(seed))
-        row = {"arena": arena, "seed": seed, **overrides, **summary(metrics)}
-        row["seconds"] = round(time.perf_counter() - t0, 1)
+        key = jax.random.PRNGKey(seed)
+        rates, seconds = common.run_timed(
+            lambda key=key: summary(evaluate_fn(arena_advisor(env), key))
+        )
+        row = {"arena": arena, "seed": seed, **overrides, **rates, "seconds": round(seconds, 1)}
         print(json.dumps(row), flush=True)
         rows.append(row)
     return rows
@@ -73,11 +71,12 @@ def run(arena: str, episodes: int, seeds: tuple[int, ...], **overrides) -> list[
 
 def main(args: Args) -> dict:
     default_omega = envs.EnvConfig().omega_max
+    where = common.provenance()
     result = {
-        "date": args.date or datetime.date.today().isoformat(),
-        "command": "python " + " ".join(sys.argv),
-        "machine": f"{platform.node()}, {os.cpu_count()} CPUs, {jax.devices()[0].device_kind}",
-        "jax": jax.__version__,
+        **where,
+        "date": args.date or where["date"],
+        "command": common.command_line("experiments/calibrate_advisor.py", sys.argv[1:]),
+        "machine": f"{where['host']}, {where['cpu_count']} CPUs, {where['device']}",
         "omega_max_default": default_omega,
         "main": [],
         "seeds": [],
@@ -98,6 +97,15 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
 
+def _speed(speed: float | None) -> str:
+    return "n/a" if speed is None else f"{speed:.3f} m/s"
+
+
+def _rates(row: dict) -> tuple[str, str, str]:
+    """Success, collision and timeout rates of a row, as table cells."""
+    return tuple(_pct(row[k]) for k in ("success_rate", "collision_rate", "timeout_rate"))
+
+
 def write(result: dict, out: pathlib.Path) -> None:
     atomic_write_json(out.with_suffix(".json"), result)
     paper = {"training": "53.6 %", "validation": "50.4 %", "physical": "32 % (real car)"}
@@ -111,16 +119,13 @@ def write(result: dict, out: pathlib.Path) -> None:
         "- each episode: random collision-free start (uniform position and heading) and goal "
         "≥ 1 m away; deterministic advisor; the first episode of each parallel env counts",
         "",
-        "| arena | episodes | success | collision | timeout | mean collision speed | paper |",
-        "|---|---:|---:|---:|---:|---:|---:|",
-    ]
-    for r in result["main"]:
-        speed = r["mean_collision_speed"]
-        lines.append(
-            f"| {r['arena']} | {r['episodes']} | {_pct(r['success_rate'])} | "
-            f"{_pct(r['collision_rate'])} | {_pct(r['timeout_rate'])} | "
-            f"{'n/a' if speed is None else f'{speed:.3f} m/s'} | {paper.get(r['arena'], '–')} |"
-        )
+        *common.markdown_table(
+            ("arena", "episodes", "success", "collision", "timeout", "mean collision speed",
+             "paper"),
+            [(r["arena"], r["episodes"], *_rates(r), _speed(r["mean_collision_speed"]),
+              paper.get(r["arena"], "–")) for r in result["main"]],
+        ),
+    ]  # fmt: skip
     if result["seeds"]:
         lines += ["", "Spread over seeds (success rate, same episodes count):", ""]
         for arena in ("training", "validation"):
@@ -138,17 +143,16 @@ def write(result: dict, out: pathlib.Path) -> None:
             "",
             "Sensitivity to ω_max (the paper does not give it), seed as above:",
             "",
-            "| arena | ω_max (rad/s) | success | collision | timeout |",
-            "|---|---:|---:|---:|---:|",
         ]
         default = [r for r in result["main"] if r["arena"] in ("training", "validation")]
         rows = result["omega"] + [dict(r, omega_max=result["omega_max_default"]) for r in default]
-        for r in sorted(rows, key=lambda r: (r["arena"], r["omega_max"])):
-            lines.append(
-                f"| {r['arena']} | {r['omega_max']:g} | {_pct(r['success_rate'])} | "
-                f"{_pct(r['collision_rate'])} | {_pct(r['timeout_rate'])} |"
-            )
-    atomic_write_text(out.with_suffix(".md"), "\n".join(lines) + "\n")
+        rows.sort(key=lambda r: (r["arena"], r["omega_max"]))
+        lines += common.markdown_table(
+            ("arena", "ω_max (rad/s)", "success", "collision", "timeout"),
+            [(r["arena"], r["omega_max"], *_rates(r)) for r in rows],
+            formats=("", "g", ""),
+        )
+    common.write_markdown(out.with_suffix(".md"), lines)
 
 
 if __name__ == "__main__":

@@ -16,11 +16,11 @@ import dataclasses
 import json
 from pathlib import Path
 
+import common
 import numpy as np
 
-from advisor_jax.config import preset
-from advisor_jax.fileio import atomic_write_text
-from advisor_jax.reporting import group_agents, mean_ci95, save_png
+from advisor_jax.agent.config import preset
+from advisor_jax.training.reporting import group_agents, mean_ci95, save_png
 
 
 def main() -> None:
@@ -37,7 +37,7 @@ def main() -> None:
     args = parser.parse_args()
 
     if not args.summarize_only:
-        from advisor_jax.run import run_training
+        from advisor_jax.training.host_loop import run_training
 
         cfg, hp = preset(args.preset, args.agent)
         cfg = dataclasses.replace(cfg, episodes=args.episodes or cfg.episodes)
@@ -83,34 +83,32 @@ def main() -> None:
     save_png(fig, args.out / "sweep_nt.png")
 
     arenas = list(ev)
-    nt_values = " ".join(f"{r['N_T']:g}" for r in rows)
+    seeds = len(summary["agents"]) // len(rows)
+    argv = ["--preset", args.preset, "--agent", args.agent, "--episodes", n_total]
+    argv += ["--seeds", seeds, "--nt", *(f"{r['N_T']:g}" for r in rows)]
+    argv += ["--runs", args.runs, "--out", args.out]
     lines = [
         "# Fig. 6: success against the advisor's terminal episode N_T",
         "",
         f"{summary['agent']}, {n_total} training episodes in `{summary['config']['arena']}`, "
         f"{len(summary['agents'])} agents ({len(rows)} values of N_T × "
-        f"{len(summary['agents']) // len(rows)} seeds) in one vmapped program; "
+        f"{seeds} seeds) in one vmapped program; "
         f"{summary['train_seconds']:.0f} s of training on {summary['device']} "
         f"({summary['created'][:10]}). Evaluation: {ev[arenas[0]]['episodes']} episodes per "
         "arena, the same for every agent. Mean ± 95 % CI over seeds.",
         "",
-        "| N_T | N_T / N_total | " + " | ".join(f"{a} env success (%)" for a in arenas) + " |",
-        "|---:|---:|" + "---:|" * len(arenas),
-    ]
-    for r in rows:
-        cells = " | ".join(f"{r[a][0]:.1f} ± {r[a][1]:.1f}" for a in arenas)
-        lines.append(f"| {r['N_T']:g} | {100 * r['N_T'] / n_total:.0f} % | {cells} |")
-    lines += [
+        *common.markdown_table(
+            ("N_T", "N_T / N_total", *(f"{a} env success (%)" for a in arenas)),
+            [(f"{r['N_T']:g}", f"{100 * r['N_T'] / n_total:.0f} %",
+              *(f"{r[a][0]:.1f} ± {r[a][1]:.1f}" for a in arenas)) for r in rows],
+            align="r",
+        ),
         "",
         "![success vs N_T](sweep_nt.png)",
         "",
-        f"Command: `python experiments/sweep_nt.py --preset {args.preset} --agent {args.agent} "
-        f"--episodes {n_total} --seeds {len(summary['agents']) // len(rows)} --nt "
-        f"{nt_values} --runs {args.runs} --out {args.out}`",
-        "",
-    ]
-    atomic_write_text(args.out / "sweep_nt.md", "\n".join(lines))
-    print("\n".join(lines))
+        f"Command: `{common.command_line('experiments/sweep_nt.py', argv)}`",
+    ]  # fmt: skip
+    common.write_markdown(args.out / "sweep_nt.md", lines, echo=True)
 
 
 if __name__ == "__main__":

@@ -17,11 +17,11 @@ import json
 import sys
 from pathlib import Path
 
+import common
 import numpy as np
 
-from advisor_jax.config import PAPER_AGENTS, preset
-from advisor_jax.fileio import atomic_write_text
-from advisor_jax.reporting import mean_ci95, moving_average, save_png
+from advisor_jax.agent.config import PAPER_AGENTS, preset
+from advisor_jax.training.reporting import mean_ci95, moving_average, save_png
 
 PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
     "DDPG": (72.2, 71.3),
@@ -34,7 +34,7 @@ PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
 
 
 def train(args) -> None:
-    from advisor_jax.run import run_training
+    from advisor_jax.training.host_loop import run_training
 
     for agent in args.agents:
         cfg, hp = preset(args.preset, agent)
@@ -82,11 +82,8 @@ def summarize(args) -> None:
         f"{first['evaluation']['training']['episodes']} episodes per arena, the same episodes "
         "for every agent. Mean ± 95 % CI over seeds (%). Device: "
         f"{first['device']}; date {first['created'][:10]}.",
-        "",
-        "| agent | seeds | training env | validation env | collision speed, eval (m/s) "
-        "| paper (train / val) |",
-        "|---|---:|---:|---:|---:|---:|",
     ]
+    table = []
     fig, axes = plt.subplots(1, 2, figsize=(12, 4), constrained_layout=True)
     for agent, run_dir, summary in runs:
         ev = summary["evaluation"]
@@ -97,11 +94,8 @@ def summarize(args) -> None:
         speed = [v for v in ev["training"]["collision_speed"] if v is not None]
         paper = PAPER_TABLE1.get(agent)
         paper_cell = f"{paper[0]:.1f} / {paper[1]:.1f}" if paper else "–"
-        lines.append(
-            f"| {agent} | {len(summary['agents'])} | {cells[0]} | {cells[1]} | "
-            f"{_fmt(*mean_ci95(speed)) if speed else '–'} | "
-            f"{paper_cell} |"
-        )
+        speed_cell = _fmt(*mean_ci95(speed)) if speed else "–"
+        table.append((agent, len(summary["agents"]), *cells, speed_cell, paper_cell))
         metrics = np.load(run_dir / "metrics.npz")
         episodes = np.arange(1, metrics["outcome"].shape[1] + 1)
         window = max(1, min(150, len(episodes) // 5))
@@ -119,18 +113,23 @@ def summarize(args) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     save_png(fig, args.out / "table1.png")
+    train_argv = ["train", "--runs", args.runs, "--preset", first.get("preset", "paper"),
+                  "--episodes", cfg["episodes"], "--seeds", len(first["agents"])]  # fmt: skip
+    summarize_argv = ["summarize", "--runs", args.runs, "--out", args.out]
     lines += [
+        "",
+        *common.markdown_table(
+            ("agent", "seeds", "training env", "validation env", "collision speed, eval (m/s)",
+             "paper (train / val)"),
+            table,
+        ),
         "",
         "![learning curves](table1.png)",
         "",
-        f"Commands: `python experiments/table1.py train --runs {args.runs} --preset "
-        f"{first.get('preset', 'paper')} --episodes {cfg['episodes']} --seeds "
-        f"{len(first['agents'])}` then `python experiments/table1.py summarize --runs "
-        f"{args.runs} --out {args.out}`.",
-        "",
-    ]
-    atomic_write_text(args.out / "table1.md", "\n".join(lines))
-    print("\n".join(lines))
+        f"Commands: `{common.command_line('experiments/table1.py', train_argv)}` then "
+        f"`{common.command_line('experiments/table1.py', summarize_argv)}`.",
+    ]  # fmt: skip
+    common.write_markdown(args.out / "table1.md", lines, echo=True)
 
 
 def main() -> None:
