@@ -41,15 +41,14 @@ import numpy as np  # noqa: E402
 from advisor_jax.contract.zones import reduce_to_zones  # noqa: E402
 from advisor_jax.runner.cyclelog import JsonlLog, read_log  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive  # noqa: E402
-from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
-from advisor_jax.runner.observation import (  # noqa: E402
-    ObservationBuilder,
-    ObservationConfig,
+from advisor_jax.runner.lidar_zones import (  # noqa: E402
     free_distances,
     scan_to_robot_frame,
     zone_minima_mm,
     zone_table,
 )
+from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
+from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
 
 
 class _Cycling:

@@ -47,6 +47,7 @@ from advisor_jax.contract import spec
 from advisor_jax.deploy.golden import ExportError, golden_observations
 from advisor_jax.fileio import atomic_write_bytes
 from advisor_jax.runner import policy as rp
+from advisor_jax.runner import policy_meta as pm
 from advisor_jax.runner.errors import RunnerError
 from advisor_jax.runner.onnx_model import build_onnx
 
@@ -103,7 +104,7 @@ def export_policy(
     )
     golden_bytes = _npz_bytes(golden)
     meta = {
-        "schema_version": rp.SCHEMA_VERSION,
+        "schema_version": pm.SCHEMA_VERSION,
         "layers": [
             {
                 "name": x.name,
@@ -134,15 +135,15 @@ def export_policy(
         "control": control,
         "env": env,
         "config": config,
-        "config_hash": rp.config_hash(config, env),
-        "weights_sha256": rp.sha256_bytes(weights),
-        "golden_sha256": rp.sha256_bytes(golden_bytes),
+        "config_hash": pm.config_hash(config, env),
+        "weights_sha256": pm.sha256_bytes(weights),
+        "golden_sha256": pm.sha256_bytes(golden_bytes),
         "golden_size": len(obs),
-        "onnx_sha256": None if onnx_bytes is None else rp.sha256_bytes(onnx_bytes),
+        "onnx_sha256": None if onnx_bytes is None else pm.sha256_bytes(onnx_bytes),
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "advisor_jax_version": __version__,
     }
-    meta["metadata_sha256"] = rp.metadata_sha256(meta)  # last: covers every field above
+    meta["metadata_sha256"] = pm.metadata_sha256(meta)  # last: covers every field above
     atomic_write_bytes(os.path.join(out_dir, rp.POLICY_NPZ), weights)
     atomic_write_bytes(os.path.join(out_dir, rp.GOLDEN_NPZ), golden_bytes)
     onnx_path = os.path.join(out_dir, rp.POLICY_ONNX)
@@ -214,7 +215,7 @@ def _describe(env: dict) -> tuple[dict, dict, dict]:
         or not (bounds[0] < bounds[1] and bounds[2] < bounds[3])
     ):
         raise ExportError(f"env_meta bounds={bounds!r} must be [xmin, xmax, ymin, ymax]")
-    trained = rp.trained_values(env)  # the runner checks every copy below against these
+    trained = pm.trained_values(env)  # the runner checks every copy below against these
     control = {
         "v_max": trained["v_max"],
         "omega_max": trained["omega_max"],

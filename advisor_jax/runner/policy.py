@@ -25,7 +25,6 @@ computed in float32, for one observation [20] or a batch [N, 20].
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import io
 import json
 import math
@@ -38,68 +37,22 @@ import numpy as np
 
 from advisor_jax.contract import spec
 from advisor_jax.runner.errors import PolicyError
+from advisor_jax.runner.policy_meta import (
+    check_meta,
+    fail,
+    sha256_bytes,
+)
 
-SCHEMA_VERSION = 2
-"""Schema 2 added ``metadata_sha256``. Schema 1 exports are still read: every field they hold
-that changes what the car does is checked against the hash-covered ``env`` all the same."""
-READABLE_SCHEMAS = (1, 2)
 POLICY_JSON = "policy.json"
 POLICY_NPZ = "policy.npz"
 GOLDEN_NPZ = "golden.npz"
 POLICY_ONNX = "policy.onnx"
 GOLDEN_TOLERANCE = 1e-5
-HEAD_ACTIVATIONS = ("sigmoid", "tanh")  # (V, ω), paper §5.3
 _SIGMOID_CLIP = 80.0  # |z| beyond this saturates sigmoid in float32; avoids exp overflow
 # The control cycle calls these once per cycle (bench_runner.py): bound once, and a float32
 # zero so that np.maximum does not convert a Python float on every call.
 _matmul, _add, _maximum, _vdot = np.matmul, np.add, np.maximum, np.vdot
 _ZERO32 = np.zeros((), np.float32)
-
-
-def canonical_json(obj: Any) -> bytes:
-    """Canonical JSON bytes (sorted keys, no spaces, ASCII, no NaN) used for hashing."""
-    return json.dumps(
-        obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False
-    ).encode("ascii")
-
-
-def config_hash(config_meta: dict, env_meta: dict) -> str:
-    """sha256 of the canonical JSON of ``{"config": config_meta, "env": env_meta}``."""
-    return hashlib.sha256(canonical_json({"config": config_meta, "env": env_meta})).hexdigest()
-
-
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def metadata_sha256(meta: dict) -> str:
-    """sha256 of the canonical JSON of policy.json without its ``metadata_sha256`` field.
-
-    ``config_hash`` covers only env and config; this covers every other field too (control,
-    heads, sensors, observation, layers, the file hashes), so any edit of policy.json after
-    export is refused. Like every hash here it detects accidents and careless edits, not a
-    forger, who can recompute it: the cross-checks against the trained values still apply.
-    """
-    return sha256_bytes(canonical_json({k: v for k, v in meta.items() if k != "metadata_sha256"}))
-
-
-def trained_values(env: dict) -> dict[str, Any]:
-    """What the actor was trained with, read from the env metadata (covered by config_hash).
-
-    The exporter derives policy.json's ``control``, heads and ``sensors`` sections from these
-    (same defaults), and ``load_policy`` requires them to be equal: the car never drives with a
-    speed, yaw rate, period, lidar offset or range cutoff other than the simulator's.
-    """
-    offset = env.get("lidar_range_offset")
-    if not isinstance(offset, int | float):
-        offset = env.get("robot_radius", 0.0)
-    return {
-        "v_max": env.get("v_max", spec.V_MAX),
-        "omega_max": env.get("omega_max"),
-        "dt": env.get("dt", spec.CONTROL_DT),
-        "max_range": env.get("max_range", spec.MAX_RANGE),
-        "lidar_range_offset": offset,
-    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,24 +146,20 @@ class Policy:
         return self.meta["weights_sha256"]
 
 
-def _fail(path: str, problem: str) -> PolicyError:
-    return PolicyError(f"{path}: {problem}")
-
-
 def _read_bytes(path: str) -> bytes:
     try:
         with open(path, "rb") as f:
             return f.read()
     except FileNotFoundError:
-        raise _fail(path, "missing (not an export directory, or an incomplete export)") from None
+        raise fail(path, "missing (not an export directory, or an incomplete export)") from None
     except OSError as e:
-        raise _fail(path, f"cannot be read ({e.strerror or e})") from None
+        raise fail(path, f"cannot be read ({e.strerror or e})") from None
 
 
 def _load_npz(path: str, data: bytes, expected_sha: Any) -> dict[str, np.ndarray]:
     actual = sha256_bytes(data)
     if actual != expected_sha:
-        raise _fail(
+        raise fail(
             path,
             f"sha256 {actual[:16]}… does not match policy.json's {str(expected_sha)[:16]}… "
             "(file modified, truncated or from another export)",
@@ -219,187 +168,40 @@ def _load_npz(path: str, data: bytes, expected_sha: Any) -> dict[str, np.ndarray
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             return {k: np.asarray(npz[k]) for k in npz.files}
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as e:
-        raise _fail(path, f"corrupt or truncated npz ({type(e).__name__}: {e})") from None
-
-
-def _positive(json_path: str, section: dict, key: str) -> None:
-    value = section.get(key)
-    if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-        raise _fail(json_path, f"{key}={value!r} must be a positive number")
-
-
-def _check_meta(json_path: str, meta: Any) -> None:
-    if not isinstance(meta, dict):
-        raise _fail(json_path, "top level must be a JSON object")
-    version = meta.get("schema_version")
-    if type(version) is not int or version not in READABLE_SCHEMAS:
-        raise _fail(
-            json_path,
-            f"unsupported schema_version {version!r} (this runner reads "
-            f"{', '.join(map(str, READABLE_SCHEMAS))})",
-        )
-    required = (
-        "layers",
-        "heads",
-        "observation",
-        "sensors",
-        "control",
-        "env",
-        "config",
-        "config_hash",
-        "weights_sha256",
-        "golden_sha256",
-    ) + (("metadata_sha256",) if version >= 2 else ())
-    missing = [k for k in required if k not in meta]
-    if missing:
-        raise _fail(json_path, f"missing field(s) {', '.join(missing)}")
-    if version >= 2:
-        try:
-            actual = metadata_sha256(meta)
-        except (TypeError, ValueError) as e:
-            raise _fail(json_path, f"contents are not canonical JSON ({e})") from None
-        if actual != meta["metadata_sha256"]:
-            raise _fail(
-                json_path,
-                f"metadata_sha256 {str(meta['metadata_sha256'])[:16]}… does not match its "
-                f"contents ({actual[:16]}…): policy.json was edited after export",
-            )
-    for key in ("observation", "sensors", "control", "env", "config"):
-        if not isinstance(meta[key], dict):
-            raise _fail(json_path, f"{key} must be a JSON object")
-    if not isinstance(meta["heads"], list) or not all(isinstance(h, dict) for h in meta["heads"]):
-        raise _fail(json_path, "heads must be a list of objects")
-    obs = meta["observation"]
-    if obs.get("size") != spec.OBS_SIZE or tuple(obs.get("names", ())) != spec.OBS_NAMES:
-        raise _fail(
-            json_path, f"observation layout {obs.get('names')} differs from this runner's spec.py"
-        )
-    sensors = meta["sensors"]
-    zones = (sensors.get("n_zones"), sensors.get("zone_start_deg"), sensors.get("zone_width_deg"))
-    if zones != (spec.N_ZONES, spec.ZONE_START_DEG, spec.ZONE_WIDTH_DEG):
-        raise _fail(json_path, f"zone definition {zones} differs from this runner's spec.py")
-    heads = tuple(h.get("activation") for h in meta["heads"])
-    if heads != HEAD_ACTIVATIONS:
-        raise _fail(json_path, f"head activations {heads} are not {HEAD_ACTIVATIONS}")
-    for key in ("v_max", "omega_max", "dt"):
-        _positive(json_path, meta["control"], key)
-    _positive(json_path, obs, "max_range")
-    offset = sensors.get("lidar_range_offset")
-    if not isinstance(offset, int | float) or not math.isfinite(offset) or offset < 0:
-        raise _fail(json_path, f"lidar_range_offset={offset!r} must be a number >= 0")
-    bounds = meta["env"].get("bounds")
-    if bounds is not None and not (
-        isinstance(bounds, list)
-        and len(bounds) == 4
-        and all(isinstance(b, int | float) and math.isfinite(b) for b in bounds)
-        and bounds[0] < bounds[1]
-        and bounds[2] < bounds[3]
-    ):
-        raise _fail(json_path, f"env bounds {bounds!r} must be [xmin, xmax, ymin, ymax]")
-    try:
-        expected = config_hash(meta["config"], meta["env"])
-    except (TypeError, ValueError) as e:
-        raise _fail(json_path, f"env/config are not canonical JSON ({e})") from None
-    if expected != meta["config_hash"]:
-        raise _fail(json_path, "config_hash does not match its env/config (metadata was edited)")
-    _check_against_training(json_path, meta)
-
-
-def _check_against_training(json_path: str, meta: dict) -> None:
-    """Every field the car acts on must equal what the actor was trained with.
-
-    policy.json repeats the training values in the sections the car reads (``control``,
-    ``heads``, ``sensors``, ``observation``); ``config_hash`` covers only ``env``. A value
-    that differs from its ``env`` original would make the car faster (v_max), turn harder
-    (omega_max), run at another rate (dt) or see obstacles nearer or farther (lidar offset,
-    range cutoff) than in training, so it is refused, naming the field and both values.
-    """
-    trained = trained_values(meta["env"])
-    for name, value in trained.items():
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise _fail(json_path, f"env.{name}={value!r} (the trained value) is not a number")
-    control, sensors, obs = meta["control"], meta["sensors"], meta["observation"]
-    heads = {h.get("name"): h for h in meta["heads"]}
-    fields = [
-        ("control.v_max", control.get("v_max"), "v_max"),
-        ("control.omega_max", control.get("omega_max"), "omega_max"),
-        ("control.dt", control.get("dt"), "dt"),
-        ("heads[V].scale", heads.get("V", {}).get("scale"), "v_max"),
-        ("heads[omega].scale", heads.get("omega", {}).get("scale"), "omega_max"),
-        ("sensors.lidar_range_offset", sensors.get("lidar_range_offset"), "lidar_range_offset"),
-        ("sensors.max_range", sensors.get("max_range"), "max_range"),
-        ("observation.max_range", obs.get("max_range"), "max_range"),
-    ]
-    for where, value, name in fields:
-        if value != trained[name]:
-            beyond = (
-                " (beyond the trained limit)"
-                if name in ("v_max", "omega_max")
-                and isinstance(value, int | float)
-                and value > trained[name]
-                else ""
-            )
-            raise _fail(
-                json_path,
-                f"{where}={value!r} differs from {name}={trained[name]!r} the actor was "
-                f"trained with (env.{name}){beyond}",
-            )
-    boxes = (
-        ("control.action_names", control.get("action_names"), list(spec.ACTION_NAMES)),
-        ("control.action_low", control.get("action_low"), list(spec.ACTION_LOW)),
-        ("control.action_high", control.get("action_high"), list(spec.ACTION_HIGH)),
-        (
-            "heads[V].range",
-            heads.get("V", {}).get("range"),
-            [spec.ACTION_LOW[0], spec.ACTION_HIGH[0]],
-        ),
-        (
-            "heads[omega].range",
-            heads.get("omega", {}).get("range"),
-            [spec.ACTION_LOW[1], spec.ACTION_HIGH[1]],
-        ),
-        (
-            "sensors.sonar_directions_deg",
-            sensors.get("sonar_directions_deg"),
-            list(spec.SONAR_DIRECTIONS_DEG),
-        ),
-    )
-    for where, value, expected in boxes:
-        if value != expected:
-            raise _fail(json_path, f"{where}={value!r} differs from this runner's {expected!r}")
+        raise fail(path, f"corrupt or truncated npz ({type(e).__name__}: {e})") from None
 
 
 def _build_layers(json_path: str, npz_path: str, meta: dict, arrays: dict) -> tuple[Layer, ...]:
     specs = meta["layers"]
     if not isinstance(specs, list) or len(specs) < 2:
-        raise _fail(json_path, "layers must list at least one hidden layer and the head")
+        raise fail(json_path, "layers must list at least one hidden layer and the head")
     names = [s.get("name") if isinstance(s, dict) else None for s in specs]
     expected_names = [f"hidden_{i}" for i in range(len(specs) - 1)] + ["head"]
     if names != expected_names:
-        raise _fail(json_path, f"layer names {names} should be {expected_names}")
+        raise fail(json_path, f"layer names {names} should be {expected_names}")
     expected_keys = {f"{n}/{p}" for n in names for p in ("kernel", "bias")}
     if set(arrays) != expected_keys:
-        raise _fail(npz_path, f"arrays {sorted(arrays)} do not match layers {names}")
+        raise fail(npz_path, f"arrays {sorted(arrays)} do not match layers {names}")
     layers, width = [], spec.OBS_SIZE
     for i, s in enumerate(specs):
         name, n_in, n_out = s["name"], s.get("in"), s.get("out")
         activation = "relu" if i < len(specs) - 1 else "heads"
         if s.get("activation") != activation or n_in != width:
-            raise _fail(json_path, f"layer {name}: expected in={width}, activation={activation}")
+            raise fail(json_path, f"layer {name}: expected in={width}, activation={activation}")
         kernel, bias = arrays[f"{name}/kernel"], arrays[f"{name}/bias"]
         for arr, shape, what in ((kernel, (n_in, n_out), "kernel"), (bias, (n_out,), "bias")):
             if arr.dtype != np.float32 or arr.shape != shape:
-                raise _fail(
+                raise fail(
                     npz_path,
                     f"{name}/{what} is {arr.dtype}{list(arr.shape)}, policy.json says "
                     f"float32{list(shape)}",
                 )
             if not np.isfinite(arr).all():
-                raise _fail(npz_path, f"{name}/{what} contains NaN or inf")
+                raise fail(npz_path, f"{name}/{what} contains NaN or inf")
         layers.append(Layer(name, np.ascontiguousarray(kernel), np.ascontiguousarray(bias)))
         width = n_out
     if width != spec.ACTION_SIZE:
-        raise _fail(json_path, f"head has {width} outputs, expected {spec.ACTION_SIZE}")
+        raise fail(json_path, f"head has {width} outputs, expected {spec.ACTION_SIZE}")
     return tuple(layers)
 
 
@@ -407,13 +209,13 @@ def verify_golden(path: str, layers: Sequence[Layer], golden: dict) -> None:
     """Raises PolicyError unless the numpy MLP reproduces ``golden["actions"]`` (1e-5)."""
     obs, actions = golden.get("obs"), golden.get("actions")
     if obs is None or actions is None:
-        raise _fail(path, f"needs arrays 'obs' and 'actions', has {sorted(golden)}")
+        raise fail(path, f"needs arrays 'obs' and 'actions', has {sorted(golden)}")
     if obs.ndim != 2 or obs.shape[1] != spec.OBS_SIZE or actions.shape != (len(obs), 2):
-        raise _fail(path, f"bad shapes obs {list(obs.shape)}, actions {list(actions.shape)}")
+        raise fail(path, f"bad shapes obs {list(obs.shape)}, actions {list(actions.shape)}")
     if len(obs) == 0 or obs.dtype != np.float32 or actions.dtype != np.float32:
-        raise _fail(path, "obs and actions must be non-empty float32 arrays")
+        raise fail(path, "obs and actions must be non-empty float32 arrays")
     if not (np.isfinite(obs).all() and np.isfinite(actions).all()):
-        raise _fail(path, "contains NaN or inf")
+        raise fail(path, "contains NaN or inf")
     # Both the batched path (gemm) and the single-observation path the loop uses (gemv).
     err = np.abs(mlp_forward(layers, obs) - actions).max(axis=1)
     pairs = zip(obs[:16], actions[:16], strict=True)
@@ -421,7 +223,7 @@ def verify_golden(path: str, layers: Sequence[Layer], golden: dict) -> None:
     worst = int(np.argmax(err))
     max_err = max(float(err[worst]), max(single))
     if not max_err <= GOLDEN_TOLERANCE:
-        raise _fail(
+        raise fail(
             path,
             f"numpy policy differs from the exported JAX actions by {max_err:.3g} "
             f"(row {worst}; tolerance {GOLDEN_TOLERANCE:g}): weights or maths do not match",
@@ -437,8 +239,8 @@ def load_policy(directory: str | os.PathLike) -> Policy:
     try:
         meta = json.loads(_read_bytes(json_path).decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise _fail(json_path, f"not valid JSON ({e})") from None
-    _check_meta(json_path, meta)
+        raise fail(json_path, f"not valid JSON ({e})") from None
+    check_meta(json_path, meta)
     npz_path = os.path.join(directory, POLICY_NPZ)
     arrays = _load_npz(npz_path, _read_bytes(npz_path), meta["weights_sha256"])
     layers = _build_layers(json_path, npz_path, meta, arrays)

@@ -122,7 +122,7 @@ def test_dry_run_then_replay(export_dir, tmp_path, capsys, monkeypatch):
 def test_car_refuses_an_export_with_edited_limits(export_copy, capsys, monkeypatch):
     """v_max 1 → 5 in policy.json (hash recomputed, as a careful editor would): the car
     refuses before touching any hardware, and no motor command is printed."""
-    from advisor_jax.runner.policy import metadata_sha256
+    from advisor_jax.runner.policy_meta import metadata_sha256
 
     opened = []
     monkeypatch.setattr(hardware, "RplidarScanSource", lambda *a, **k: opened.append(a))

@@ -16,7 +16,8 @@ from runner_fakes import CONFIG_META, ENV_META, export_test_actor, rollout_like_
 from advisor_jax.contract import spec
 from advisor_jax.deploy.export import ExportError
 from advisor_jax.deploy.golden import edge_case_observations
-from advisor_jax.runner.policy import Layer, config_hash, load_policy, mlp_forward
+from advisor_jax.runner.policy import Layer, load_policy, mlp_forward
+from advisor_jax.runner.policy_meta import config_hash
 
 
 def test_round_trip_metadata(export_dir, policy, actor_params):

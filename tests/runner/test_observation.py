@@ -14,6 +14,7 @@ from runner_fakes import ring_scan
 
 from advisor_jax.contract import spec, zones
 from advisor_jax.runner.errors import ObservationError
+from advisor_jax.runner.lidar_zones import rplidar_zones, scan_to_robot_frame, zone_table
 from advisor_jax.runner.observation import (
     ObservationBuilder,
     ObservationConfig,
@@ -21,9 +22,6 @@ from advisor_jax.runner.observation import (
     Scan,
     check_fresh,
     goal_features,
-    rplidar_zones,
-    scan_to_robot_frame,
-    zone_table,
 )
 
 BOUNDS = (-2.45, 2.45, -1.5, 1.5)

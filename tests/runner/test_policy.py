@@ -12,7 +12,8 @@ import pytest
 
 from advisor_jax.contract import spec
 from advisor_jax.runner.errors import PolicyError
-from advisor_jax.runner.policy import config_hash, load_policy, metadata_sha256
+from advisor_jax.runner.policy import load_policy
+from advisor_jax.runner.policy_meta import config_hash, metadata_sha256
 
 
 def _meta(d):
