@@ -27,8 +27,9 @@ Choices where the paper is loose, all standard:
   sample and action dimension (Table A4: μ = 0).
 * A terminal transition (goal, collision) does not bootstrap; a timeout does (the
   paper's Q̂ has no (1 - terminal) factor but its episodes are finite).
-* Â is not clipped to the action box: Eq. (2) does not, and the actor's sigmoid/tanh head
-  keeps π(S) inside the box whatever Â is.
+* Â is not clipped to the action box by default: Eq. (2) does not, and the actor's
+  sigmoid/tanh head keeps π(S) inside the box whatever Â is (``clip_actor_target`` = 1
+  clips it; see below).
 * Twin critics are one params tree with a leading axis (``networks.init_critics``), one
   loss (the sum of the per-critic losses, so each critic gets its own gradient) and one
   Adam. Q_1 (index 0) drives the actor (Alg. A3 step 17) and the AfP mask (step 19).
@@ -42,7 +43,14 @@ Metrics (flat dicts of scalars, the same keys for every algorithm): ``critic_ste
 ``loss/critic`` (mean over critics), ``q/mean`` (Q(S, A) over critics and batch),
 ``q/target`` (mean Q̂) and ``grad_norm/critic``; ``actor_step`` gives ``loss/actor``,
 ``advisor/replaced`` (fraction of the batch where AfP replaced Â; 0 without AfP and for
-DDPG/TD3) and ``grad_norm/actor``.
+DDPG/TD3), ``grad_norm/actor`` and the diagnostics of ``actor_diagnostics`` (``diag/...``:
+∇_aQ scale, Eq. 2 step, advisor gap, Q gain, saturated heads). A non-finite loss, Q or
+gradient norm marks the agent diverged; a ``diag/`` value may be NaN (not defined).
+
+Two readings are selectable per agent, as hyperparameters (0 = the paper, the default):
+``beta_normalize`` makes Eq. (2)'s step scale-free (``update_rules.eq2_step``) and
+``clip_actor_target`` clips Â to the action box before AfP compares and the actor regresses
+on it.
 """
 
 from __future__ import annotations
@@ -181,7 +189,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
         # One actor forward; the loss is differentiated w.r.t. the actions and pulled back.
         actions, pullback = jax.vjp(lambda p: actor.apply(p, batch.obs), state.actor)
         if cfg.advisor_target:
-            a_hat, replaced = addpg_actor_targets(
+            targets = addpg_actor_targets(
                 q1,
                 batch.obs,
                 actions,
@@ -189,11 +197,19 @@ def make_learner(cfg: AgentConfig) -> Learner:
                 hp.beta,
                 cfg.advisor_policy,
                 replace_allowed=episode <= hp.advisor_policy_episodes,
+                normalize=hp.beta_normalize,
+                clip_target=hp.clip_actor_target,
             )
-            loss, dloss = jax.value_and_grad(mse_actor_loss)(actions, a_hat)
+            loss, dloss = jax.value_and_grad(mse_actor_loss)(actions, targets.a_hat)
+            replaced, grad_q = targets.replaced, targets.grad_q
         else:
             replaced = jnp.zeros(actions.shape[:-1], bool)
             loss, dloss = jax.value_and_grad(lambda a: dpg_actor_loss(q1, batch.obs, a))(actions)
+            grad_q = -dloss * actions.shape[0]  # the DPG loss is -(1/n) Σ Q: dloss = -∇_aQ / n
+            targets = None
+        diagnostics = actor_diagnostics(
+            actions, batch.advisor_action, grad_q, targets, cfg.advisor_policy
+        )
         (grads,) = pullback(dloss)
         updates, actor_opt = _adam(hp.lr_actor).update(grads, state.actor_opt, state.actor)
         actor_params = optax.apply_updates(state.actor, updates)
@@ -208,6 +224,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
             "loss/actor": loss,
             "advisor/replaced": jnp.mean(replaced.astype(jnp.float32)),
             "grad_norm/actor": optax.global_norm(grads),
+            **diagnostics,
         }
         return new_state, metrics
 
@@ -256,5 +273,41 @@ def make_learner(cfg: AgentConfig) -> Learner:
     )
 
 
+def actor_diagnostics(
+    actions: jax.Array, advisor_actions: jax.Array, grad_q: jax.Array, targets, afp: bool
+) -> Metrics:
+    """What an actor update did, per batch (all under ``diag/``; NaN where not defined).
+
+    * ``diag/grad_q_rms``: rms_i ‖∇_aQ_1(s_i, π(s_i))‖ (every algorithm).
+    * ``diag/step``: mean ‖step_i‖ of Eq. (2) (β∇_aQ or its scale-free form; ADDPG family).
+    * ``diag/advisor_gap``: mean ‖a_adv,i − π(s_i)‖ over the samples AfP replaced.
+    * ``diag/q_gain``: mean Q(s_i, a_adv,i) − Q(s_i, â_i), before replacement (AfP).
+    * ``diag/saturated``: fraction of output heads at their bounds (sigmoid V within 0.01 of
+      0 or 1, tanh ω within 0.01 of ±1): a saturated head passes almost no gradient.
+    """
+    norm = lambda x: jnp.sqrt(jnp.sum(jnp.square(x), axis=-1))  # noqa: E731
+    nan = jnp.full((), jnp.nan, actions.dtype)
+    v, w = actions[..., 0], actions[..., 1]
+    saturated = jnp.stack([(v < 0.01) | (v > 0.99), jnp.abs(w) > 0.99], axis=-1)
+    out = {
+        "diag/grad_q_rms": jnp.sqrt(jnp.mean(jnp.square(norm(grad_q)))),
+        "diag/step": nan,
+        "diag/advisor_gap": nan,
+        "diag/q_gain": nan,
+        "diag/saturated": jnp.mean(saturated.astype(actions.dtype)),
+    }
+    if targets is not None:
+        gap = norm(advisor_actions - actions)
+        count = jnp.sum(targets.replaced)
+        gap_sum = jnp.sum(jnp.where(targets.replaced, gap, 0.0))
+        out["diag/step"] = jnp.mean(norm(targets.step))
+        out["diag/advisor_gap"] = jnp.where(count > 0, gap_sum / jnp.maximum(count, 1), jnp.nan)
+        if afp:
+            out["diag/q_gain"] = jnp.mean(targets.q_gain)
+    return out
+
+
 def _all_finite(metrics: Metrics) -> jax.Array:
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in metrics.values()]))
+    """Whether every loss, Q estimate and gradient norm is finite (``diag/`` may be NaN)."""
+    values = [v for name, v in metrics.items() if not name.startswith("diag/")]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in values]))

@@ -11,13 +11,15 @@ that ``resume=True`` continues an interrupted run. At the end it writes, into ``
     run.json          config, agents (seed + hyperparameters), status, timings, device
     params/           orbax: final actor, critics and targets of every agent (leading axis)
     metrics.npz       per agent × episode: outcome, length, return, reward per step,
-                      collision speed, actor firing rate, Eq. (11) expected maximum
+                      collision speed, actor firing rate, Eq. (11) expected maximum;
+                      per agent × chunk: ``log/<metric>``, the train log's series
     episodes.csv      the same, one row per (agent, episode)
     eval.json         deterministic-actor evaluation per agent and arena
-    learning_curve.png, train_log.jsonl
+    train_log.jsonl   one line per chunk: losses, Q, diagnostics (population and per agent)
+    learning_curve.png, diagnostics.png
     .lock             held (flock) by the running process: pid, host, start time
 
-Safety (issue 20): every option is checked before anything is written or compiled; the run
+Safety: every option is checked before anything is written or compiled; the run
 takes ``out_dir`` exclusively (``runlock``); SIGTERM is handled like Ctrl-C (checkpoint,
 status "interrupted"); ``resume=True`` of a run killed before its first checkpoint starts it
 afresh, and one whose newest checkpoint is corrupt resumes from the previous good one
@@ -193,6 +195,8 @@ def _train_locked(
 
     checkpoint.save_tree(out_dir / "params", _final_params(state))
     metrics = reporting.episode_metrics(state, hp, n_total)
+    series = reporting.read_training_log(log_path, len(agents))
+    metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
     reporting.write_metrics(out_dir, metrics, agents)
     evaluation = {}
     if eval_episodes:
@@ -210,6 +214,7 @@ def _train_locked(
         )
         atomic_write_json(out_dir / "eval.json", evaluation)
     reporting.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
+    reporting.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
 
     diverged = np.asarray(state.diverged)
     summary.update(

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -69,10 +70,13 @@ def training_progress(console: Console, total_episodes: int, disable: bool = Fal
 
 
 def chunk_line(step: int, seconds: float, episodes: np.ndarray, metrics: Mapping) -> dict:
-    """One JSON line per chunk: progress and mean losses over agents and steps.
+    """One JSON line per chunk: progress, and each metric's mean over the chunk's steps.
 
-    A metric with no finite value in the chunk (no update ran yet, or every agent has
-    diverged) is ``None`` so that the line stays strict JSON.
+    ``metrics`` values are [agents, steps] (or [agents]). Each metric appears twice: under its
+    name, the mean over all agents (the progress bar's figure), and under ``per_agent``, one
+    mean per agent in population order, so the grid points of a sweep can be told apart. A
+    mean with no finite value (no update ran yet, a diagnostic not defined for this agent
+    type, a diverged agent) is ``None``, so that the line stays strict JSON.
     """
     line = {
         "step": int(step),
@@ -81,13 +85,20 @@ def chunk_line(step: int, seconds: float, episodes: np.ndarray, metrics: Mapping
         "episodes_mean": float(np.mean(episodes)),
         "episodes_min": int(np.min(episodes)),
     }
+    per_agent = {}
     for name, value in metrics.items():
         if name.startswith("train/"):
             continue
-        finite = np.asarray(value, np.float64)
-        finite = finite[np.isfinite(finite)]
-        line[name] = float(finite.mean()) if finite.size else None
+        value = np.asarray(value, np.float64).reshape(len(episodes), -1)
+        line[name] = _finite_mean(value)
+        per_agent[name] = [_finite_mean(row) for row in value]
+    line["per_agent"] = per_agent
     return line
+
+
+def _finite_mean(x: np.ndarray) -> float | None:
+    finite = x[np.isfinite(x)]
+    return float(finite.mean()) if finite.size else None
 
 
 def divergence_message(agent: Mapping, grid: Mapping) -> str:
@@ -211,6 +222,69 @@ def plot_learning_curves(path: Path, metrics, agents, grid, cfg) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle(f"{cfg.agent.name} in '{cfg.arena}': mean ± std over seeds")
+    save_png(fig, path)
+
+
+DIAGNOSTICS = (
+    ("loss/critic", "critic loss"),
+    ("q/mean", "Q(s, a) on replayed batches"),
+    ("loss/actor", "actor loss"),
+    ("advisor/replaced", "AfP: replaced fraction of the batch"),
+    ("diag/grad_q_rms", "rms ‖∇_a Q‖"),
+    ("diag/step", "mean ‖Eq. 2 step‖"),
+    ("diag/advisor_gap", "mean ‖a_adv − π(s)‖ where replaced"),
+    ("diag/q_gain", "mean Q(s, a_adv) − Q(s, â)"),
+    ("diag/saturated", "saturated output heads (fraction)"),
+)
+
+
+def read_training_log(log_path: Path, n_agents: int) -> dict[str, np.ndarray]:
+    """The per-agent series of ``train_log.jsonl``: ``{"step": [chunks], name: [agents,
+    chunks]}`` with NaN where a chunk had no value (strict-JSON ``None``)."""
+    lines = [json.loads(t) for t in log_path.read_text().splitlines()] if log_path.exists() else []
+    out = {"step": np.array([line["step"] for line in lines], np.int64)}
+    names = {name for line in lines for name in line.get("per_agent", {})}
+    for name in sorted(names):
+        rows = [line.get("per_agent", {}).get(name, [None] * n_agents) for line in lines]
+        out[name] = np.array(rows, np.float64).T.reshape(n_agents, len(lines))
+    return out
+
+
+def plot_diagnostics(path: Path, series: Mapping[str, np.ndarray], agents, grid, cfg) -> None:
+    """Learner diagnostics over training: one line per grid point (mean over its seeds, thin
+    lines for each seed), so a sweep's settings can be compared where they diverge."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [(k, title) for k, title in DIAGNOSTICS if k in series]
+    if not panels or series["step"].size == 0:
+        return
+    cols = 3
+    rows = math.ceil(len(panels) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(15, 3.4 * rows), constrained_layout=True)
+    axes = np.atleast_1d(axes).ravel()
+    steps = series["step"]
+    for key, members in group_agents(agents, grid).items():
+        label = group_label(key, grid, cfg.agent.name)
+        for ax, (name, _) in zip(axes, panels, strict=False):
+            values = series[name][members]
+            if not np.isfinite(values).any():
+                continue
+            with np.errstate(all="ignore"):
+                mean = np.nanmean(values, axis=0)
+            (line,) = ax.plot(steps, mean, label=f"{label} (n={len(members)})")
+            for row in values if len(members) > 1 else ():
+                ax.plot(steps, row, color=line.get_color(), lw=0.5, alpha=0.35)
+    for ax, (_, title) in zip(axes, panels, strict=False):
+        ax.set_title(title)
+        ax.set_xlabel("environment step")
+        ax.grid(alpha=0.3)
+    for ax in axes[len(panels) :]:
+        ax.axis("off")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{cfg.agent.name} in '{cfg.arena}': learner diagnostics per chunk")
     save_png(fig, path)
 
 

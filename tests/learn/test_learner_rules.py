@@ -41,13 +41,13 @@ A_HAT_AFP = [[0.5, 0.1], [0.5, 0.08], [0.0, 0.5], [0.9, -0.6]]
 
 
 def test_addpg_targets_without_advisor():
-    a_hat, replaced = addpg_actor_targets(quadratic_q, OBS, ACTIONS, ADVISOR, BETA, False)
+    a_hat, replaced, *_ = addpg_actor_targets(quadratic_q, OBS, ACTIONS, ADVISOR, BETA, False)
     np.testing.assert_allclose(a_hat, A_HAT_ADDPG, atol=1e-6)
     assert replaced.dtype == jnp.bool_ and not bool(replaced.any())
 
 
 def test_afp_replacement_mask():
-    a_hat, replaced = jax.jit(addpg_actor_targets, static_argnums=(0, 5))(
+    a_hat, replaced, *_ = jax.jit(addpg_actor_targets, static_argnums=(0, 5))(
         quadratic_q, OBS, ACTIONS, ADVISOR, BETA, True
     )
     np.testing.assert_array_equal(replaced, [True, False, False, True])
@@ -58,7 +58,7 @@ def test_afp_replacement_can_be_switched_off():
     """N_P (advisor_policy_episodes): a traced False gives plain ADDPG targets."""
     targets = jax.jit(addpg_actor_targets, static_argnums=(0, 5))
     for allowed, a_hat_expected in ((True, A_HAT_AFP), (False, A_HAT_ADDPG)):
-        a_hat, replaced = targets(
+        a_hat, replaced, *_ = targets(
             quadratic_q, OBS, ACTIONS, ADVISOR, BETA, True, replace_allowed=jnp.asarray(allowed)
         )
         assert bool(replaced.any()) == allowed
@@ -66,7 +66,7 @@ def test_afp_replacement_can_be_switched_off():
 
 
 def test_addpg_actor_loss_and_gradient():
-    a_hat, _ = addpg_actor_targets(quadratic_q, OBS, ACTIONS, ADVISOR, BETA, True)
+    a_hat, *_ = addpg_actor_targets(quadratic_q, OBS, ACTIONS, ADVISOR, BETA, True)
     # ||â - a||² per sample: 0.2² + 0.1² = 0.05; 0.02² = 0.0004; 0; 0.9² + 0.6² = 1.17.
     loss = mse_actor_loss(ACTIONS, a_hat)
     assert float(loss) == pytest.approx((0.05 + 0.0004 + 0.0 + 1.17) / 4, abs=1e-6)
@@ -86,7 +86,7 @@ def test_addpg_actor_loss_and_gradient():
 def test_addpg_target_ignores_gradient_through_actions():
     # The actor's actions enter Eq. (2) as data: no gradient w.r.t. them through â.
     def total(a):
-        a_hat, _ = addpg_actor_targets(quadratic_q, OBS, a, ADVISOR, BETA, True)
+        a_hat, *_ = addpg_actor_targets(quadratic_q, OBS, a, ADVISOR, BETA, True)
         return jnp.sum(a_hat)
 
     np.testing.assert_array_equal(jax.grad(total)(ACTIONS), np.zeros((4, 2)))

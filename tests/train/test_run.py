@@ -81,10 +81,30 @@ def test_run_writes_every_output(finished_run):
     assert log and all(line["loss/critic"] is None or line["loss/critic"] >= 0 for line in log)
 
 
+def test_learner_diagnostics_per_agent(finished_run):
+    """train_log.jsonl and metrics.npz hold every diagnostic once per agent and chunk, the
+    per-agent values average to the line's population mean, and diagnostics.png is drawn."""
+    out, _ = finished_run
+    log = [json.loads(t) for t in (out / "train_log.jsonl").read_text().splitlines()]
+    names = ("loss/critic", "advisor/replaced", "diag/grad_q_rms", "diag/step", "diag/saturated")
+    last = log[-1]
+    for name in names:
+        per_agent = last["per_agent"][name]
+        assert len(per_agent) == 2 and all(v is not None for v in per_agent), name
+        assert np.mean(per_agent) == pytest.approx(last[name], rel=1e-6), name
+    metrics = np.load(out / "metrics.npz")
+    np.testing.assert_array_equal(metrics["log/step"], [line["step"] for line in log])
+    series = metrics["log/diag/grad_q_rms"]
+    assert series.shape == (2, len(log))
+    np.testing.assert_allclose(series[:, -1], last["per_agent"]["diag/grad_q_rms"])
+    assert (out / "diagnostics.png").is_file()
+
+
 def test_chunk_line_is_strict_json_without_updates():
     metrics = {"loss/actor": np.full((2, 4), np.nan), "loss/critic": np.array([np.inf, 2.0])}
     line = reporting.chunk_line(500, 1.0, np.array([3, 4]), metrics)
     assert line["loss/actor"] is None and line["loss/critic"] == 2.0
+    assert line["per_agent"] == {"loss/actor": [None, None], "loss/critic": [None, 2.0]}
     json.dumps(line, allow_nan=False)
 
 
