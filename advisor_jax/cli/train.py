@@ -65,6 +65,20 @@ class TrainArgs:
     """Continue the interrupted run in --out from its last checkpoint."""
     no_progress: bool = False
     """Hide the progress bar."""
+    devices: int | None = None
+    """Devices that share the agents (default: all that JAX sees, on every host). A
+    population that does not divide evenly is padded with frozen agents."""
+    distributed: bool = False
+    """Several hosts: start JAX's distributed runtime first (jax.distributed.initialize).
+    The coordinator, process count and index come from the three options below or, when
+    those are left out, from JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / JAX_PROCESS_ID or
+    a SLURM / Open MPI job. Process 0 writes --out (a directory every host can read)."""
+    coordinator: str | None = None
+    """host:port of process 0's coordinator (implies --distributed)."""
+    num_processes: int | None = None
+    """Number of processes (hosts) in the job (implies --distributed)."""
+    process_id: int | None = None
+    """This process's index, 0 .. num_processes - 1 (implies --distributed)."""
 
 
 def build_run(args: TrainArgs):
@@ -120,9 +134,16 @@ def default_out(cfg: TrainConfig, preset_name: str) -> Path:
 
 def train_command(args: TrainArgs) -> None:
     """Entry point of ``advisor-jax train``."""
+    cfg, base_hp, grid, seeds, arenas = build_run(args)
+    if args.devices is not None and args.devices <= 0:
+        raise ValueError(f"--devices must be a positive integer, got {args.devices}")
+    multi_host = (args.coordinator, args.num_processes, args.process_id)
+    if args.distributed or any(v is not None for v in multi_host):
+        from advisor_jax.training.devices import initialize_distributed
+
+        initialize_distributed(*multi_host)  # before any other JAX call
     from advisor_jax.training.host_loop import run_training  # imports JAX: keep --help fast
 
-    cfg, base_hp, grid, seeds, arenas = build_run(args)
     out = Path(args.out) if args.out is not None else default_out(cfg, args.preset)
     run_training(
         cfg,
@@ -136,5 +157,6 @@ def train_command(args: TrainArgs) -> None:
         resume=args.resume,
         progress=not args.no_progress,
         meta={"preset": args.preset},
+        devices=args.devices,
     )
     print(f"results in {out}/ (run.json, eval.json, metrics.npz, episodes.csv, params/)")

@@ -28,6 +28,7 @@ afresh, and one whose newest checkpoint is corrupt resumes from the previous goo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import json
@@ -47,6 +48,16 @@ from advisor_jax.agent.config import HParams, TrainConfig
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.training import checkpoint, reporting, runlock
+from advisor_jax.training.devices import (
+    Placement,
+    freeze_padding,
+    is_writer,
+    pad,
+    place,
+    shard,
+    to_host,
+    unpad,
+)
 from advisor_jax.training.population import SEED_MAX, agent_keys, build_population, seed_key
 from advisor_jax.training.train import make_train
 
@@ -66,12 +77,14 @@ def run_training(
     console: Console | None = None,
     meta: Mapping | None = None,
     program: tuple | None = None,
+    devices: int | None = None,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
-    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is. ``program`` is
-    ``population_functions(cfg)`` when the caller already compiled it (tests, sweeps of
-    several runs of one config); None builds it here. Raises
+    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is. ``devices``: how
+    many of ``jax.devices()`` share the agents (None: all; ``devices.place``). ``program``
+    is ``population_functions(cfg, placement)`` for that placement when the caller already
+    compiled it (tests, several runs of one config); None builds it here. Raises
     ValueError for a bad option before anything is written, and ``runlock.RunDirectoryBusy``
     if another process is training into ``out_dir``. An interrupt (Ctrl-C or SIGTERM) saves
     a checkpoint and re-raises KeyboardInterrupt (``runlock.Interrupted`` for SIGTERM).
@@ -94,32 +107,53 @@ def run_training(
                 f"{', '.join(envs.ARENAS)}"
             )
     hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
+    placement = place(len(agents), devices)
     if resume and not (out_dir / "run.json").exists():
         raise ValueError(f"nothing to resume: {out_dir / 'run.json'} does not exist")
-    with runlock.exclusive(out_dir), runlock.sigterm_as_interrupt():
+    lock = runlock.exclusive(out_dir) if is_writer() else contextlib.nullcontext()
+    with lock, runlock.sigterm_as_interrupt():
         return _train_locked(
             cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-            checkpoint_every, resume, progress, console, meta, program,
+            checkpoint_every, resume, progress, console, meta, program, placement,
         )  # fmt: skip
 
 
 def _train_locked(
     cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-    checkpoint_every, resume, progress, console, meta, program,
+    checkpoint_every, resume, progress, console, meta, program, placement,
 ) -> dict:  # fmt: skip
-    """``run_training`` once its options are checked and ``out_dir`` is held."""
+    """``run_training`` once its options are checked and ``out_dir`` is held.
+
+    During training the state is padded and sharded (``devices``); everything written or
+    reported is of the real agents only (``real``), gathered to the host."""
     run_file = out_dir / "run.json"
     if run_file.exists() and not resume:
         raise ValueError(
             f"{out_dir} already holds a run; pass --resume to continue it or choose another --out"
         )
-    trainer, init_fn, chunk_fn = program or population_functions(cfg)
+    trainer, init_fn, chunk_fn = program or population_functions(cfg, placement)
     keys = agent_keys([a["seed"] for a in agents])
+    n_agents, n_total = len(agents), cfg.episodes
+    writer = is_writer()
+
+    def start(state):  # real agents' state -> padded, padding frozen, on the mesh
+        return shard(freeze_padding(pad(state, placement), placement, n_total), placement)
+
+    def real(tree):  # padded, sharded tree -> the real agents, numpy on the host
+        return to_host(unpad(tree, placement))
+
+    def save_checkpoint(state):
+        if writer:
+            checkpoint.save_step(out_dir / "checkpoints", step, real(state))
+
+    padded_hp = shard(pad(hp, placement), placement)
 
     summary = {
         "advisor_jax_version": __version__,
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "device": str(jax.devices()[0].device_kind),
+        "devices": placement.n_devices,
+        "processes": jax.process_count(),
         "config": dataclasses.asdict(cfg),
         "agent": cfg.agent.name,
         **(meta or {}),
@@ -143,48 +177,56 @@ def _train_locked(
             )
         summary["created"] = saved.get("created", summary["created"])
         if checkpoint.has_checkpoints(out_dir / "checkpoints"):
-            abstract = jax.eval_shape(init_fn, keys)
+            abstract = jax.eval_shape(jax.vmap(trainer.init), keys)  # the real agents
             state, step = checkpoint.restore_latest(
                 out_dir / "checkpoints", abstract, report=lambda m: console.print(f"warning: {m}")
             )
-            _trim_log(log_path, step)
+            state = start(state)
+            if writer:
+                _trim_log(log_path, step)
             console.print(f"resuming {out_dir} at environment step {step}")
         else:  # killed before its first checkpoint: nothing to lose by starting again
-            state = init_fn(keys)
-            log_path.unlink(missing_ok=True)
+            state = None
+            if writer:
+                log_path.unlink(missing_ok=True)
             console.print(f"{out_dir} has no checkpoint yet (stopped before the first one): "
                           "starting it afresh")  # fmt: skip
     else:
-        state = init_fn(keys)
-    atomic_write_json(run_file, summary)
+        state = None
+    if state is None:
+        state = freeze_padding(init_fn(shard(pad(keys, placement), placement)), placement, n_total)
+    if writer:
+        atomic_write_json(run_file, summary)
 
-    n_agents, n_total = len(agents), cfg.episodes
     reported = np.zeros(n_agents, bool)
     t_start = time.perf_counter()
     chunks = 0
     try:
         with reporting.training_progress(console, n_agents * n_total, disable=not progress) as bar:
             while step < trainer.max_steps:
-                state, metrics = chunk_fn(state, hp, jnp.int32(step))
+                state, metrics = chunk_fn(state, padded_hp, jnp.int32(step))
                 step += cfg.chunk_steps
                 chunks += 1
-                episodes = np.minimum(np.asarray(state.episodes), n_total)
-                diverged = np.asarray(state.diverged)
+                metrics = real(metrics)
+                episodes = np.minimum(real(state.episodes), n_total)
+                diverged = real(state.diverged)
                 for i in np.flatnonzero(diverged & ~reported):
                     console.print(reporting.divergence_message(agents[i], grid))
                 reported |= diverged
                 line = reporting.chunk_line(step, time.perf_counter() - t_start, episodes, metrics)
-                with open(log_path, "a") as f:
-                    f.write(json.dumps(line, allow_nan=False) + "\n")
+                if writer:
+                    with open(log_path, "a") as f:
+                        f.write(json.dumps(line, allow_nan=False) + "\n")
                 bar.update(int(episodes.sum()), line)
                 if np.all((episodes >= n_total) | diverged):
                     break
                 if checkpoint_every and chunks % checkpoint_every == 0:
-                    checkpoint.save_step(out_dir / "checkpoints", step, state)
+                    save_checkpoint(state)
     except KeyboardInterrupt as e:
-        checkpoint.save_step(out_dir / "checkpoints", step, state)
+        save_checkpoint(state)
         summary.update(status="interrupted", env_steps_per_agent=step)
-        atomic_write_json(run_file, summary)
+        if writer:
+            atomic_write_json(run_file, summary)
         what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
         console.print(
             f"{what} at environment step {step}; checkpoint saved, continue with --resume "
@@ -192,6 +234,10 @@ def _train_locked(
         )
         raise
     train_seconds = time.perf_counter() - t_start
+    save_checkpoint(state)
+    state = real(state)
+    if not writer:
+        return summary
 
     checkpoint.save_tree(out_dir / "params", _final_params(state))
     metrics = reporting.episode_metrics(state, hp, n_total)
@@ -226,7 +272,6 @@ def _train_locked(
         evaluation=evaluation,
     )
     atomic_write_json(run_file, summary)
-    checkpoint.save_step(out_dir / "checkpoints", step, state)
     reporting.print_summary(console, summary, metrics, grid)
     return summary
 
@@ -269,14 +314,26 @@ def _trim_log(log_path: Path, step: int) -> None:
     atomic_write_text(log_path, "".join(kept))
 
 
-def population_functions(cfg: TrainConfig):
+def population_functions(cfg: TrainConfig, placement: Placement | None = None):
     """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
 
-    Each call builds new jitted functions (jit compiles on their first call); callers that
-    train several populations of one config keep and reuse them."""
+    With a multi-device ``placement`` the agent axis of keys, state, hyperparameters and
+    metrics is sharded over its mesh and the step index replicated (``devices``); inputs
+    must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
+    functions (jit compiles on their first call); callers that train several populations
+    of one config keep and reuse them."""
     trainer = make_train(cfg)
-    init_fn = jax.jit(jax.vmap(trainer.init))
-    chunk_fn = jax.jit(jax.vmap(trainer.chunk, in_axes=(0, 0, None)), donate_argnums=0)
+    init, chunk = jax.vmap(trainer.init), jax.vmap(trainer.chunk, in_axes=(0, 0, None))
+    if placement is None or placement.mesh is None:
+        return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0)
+    agents, replicated = placement.agents(), placement.replicated()
+    init_fn = jax.jit(init, in_shardings=agents, out_shardings=agents)
+    chunk_fn = jax.jit(
+        chunk,
+        in_shardings=(agents, agents, replicated),
+        out_shardings=agents,
+        donate_argnums=0,
+    )
     return trainer, init_fn, chunk_fn
 
 

@@ -90,3 +90,25 @@ def single_runs(population, tiny_functions):
 
 def agent_slice(tree, i):
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[i], tree)
+
+
+# A TINY run through the host loop (run_training), as the CLI would run it ----------------
+
+RUN_SEEDS = [0, 1, 2, 3, 4]
+RUN_HP = HParams(lr_actor=1e-3, advisor_episodes=1.0)
+
+
+def train_tiny(out, program, **kw):
+    """A TINY run of RUN_SEEDS into ``out`` with the session's compiled ``program``."""
+    from advisor_jax.training.host_loop import run_training
+
+    kw = {"eval_episodes": 0, "checkpoint_every": 0, "progress": False, **kw}
+    return run_training(TINY, RUN_HP, {}, RUN_SEEDS, out, program=program, **kw)
+
+
+@pytest.fixture(scope="session")
+def straight_run(tmp_path_factory, tiny_functions):
+    """The TINY population trained without interruption (no checkpoints but the final)."""
+    out = tmp_path_factory.mktemp("straight")
+    train_tiny(out, tiny_functions)
+    return out

@@ -20,23 +20,13 @@ import jax
 import numpy as np
 import pytest
 
-from advisor_jax.agent.config import HParams
 from advisor_jax.cli.main import main as cli_main
 from advisor_jax.cli.train import TrainArgs, build_run
 from advisor_jax.training import checkpoint, reporting, runlock
 from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.population import agent_keys, parse_assignments, seed_key
 from advisor_jax.training.runlock import Interrupted
-from tests.train.conftest import TINY, run_chunks
-
-SEEDS = [0, 1, 2, 3, 4]
-HP = HParams(lr_actor=1e-3, advisor_episodes=1.0)
-
-
-def _train(out, program, **kw):
-    """A TINY run into ``out`` with the session's compiled ``program`` (tiny_functions)."""
-    kw = {"eval_episodes": 0, "checkpoint_every": 0, "progress": False, **kw}
-    return run_training(TINY, HP, {}, SEEDS, out, program=program, **kw)
+from tests.train.conftest import RUN_HP, RUN_SEEDS, TINY, run_chunks, train_tiny
 
 
 def _final_params(out):
@@ -55,14 +45,6 @@ def _flip_bit(directory, skip=checkpoint.CHECKSUMS) -> None:
     data = bytearray(target.read_bytes())
     data[len(data) // 2] ^= 0x08
     target.write_bytes(bytes(data))
-
-
-@pytest.fixture(scope="module")
-def straight_run(tmp_path_factory, tiny_functions):
-    """The TINY population trained without interruption (no checkpoints but the final)."""
-    out = tmp_path_factory.mktemp("straight")
-    _train(out, tiny_functions)
-    return out
 
 
 # 2: checksums of params/ and checkpoints/ ---------------------------------------------
@@ -162,10 +144,10 @@ def test_second_run_into_a_held_directory_is_refused(straight_run, tmp_path, tin
         assert holder.stdout.readline().strip() == "held"
         expected = rf"{out} is in use by another run: pid {holder.pid} on host "
         with pytest.raises(runlock.RunDirectoryBusy, match=expected) as info:
-            _train(out, tiny_functions)
+            train_tiny(out, tiny_functions)
         assert socket.gethostname() in str(info.value)
         with pytest.raises(runlock.RunDirectoryBusy, match=f"pid {holder.pid}"):
-            _train(out, tiny_functions, resume=True)
+            train_tiny(out, tiny_functions, resume=True)
         assert sorted(os.listdir(out)) == [runlock.LOCK_FILE, "run.json"]  # nothing written
     finally:
         holder.kill()  # like kill -9: the kernel drops the lock with the process
@@ -198,14 +180,14 @@ def test_sigterm_saves_a_checkpoint_and_resume_finishes_the_run(
     before = signal.getsignal(signal.SIGTERM)
     _stop_after_first_chunk(monkeypatch, lambda: os.kill(os.getpid(), signal.SIGTERM))
     with pytest.raises(Interrupted) as info:
-        _train(out, tiny_functions)
+        train_tiny(out, tiny_functions)
     assert info.value.signum == signal.SIGTERM
     assert signal.getsignal(signal.SIGTERM) == before
     saved = json.loads((out / "run.json").read_text())
     assert saved["status"] == "interrupted" and saved["env_steps_per_agent"] == 40
     assert checkpoint.verify_checksums(out / "checkpoints" / "40")
     monkeypatch.undo()
-    assert _train(out, tiny_functions, resume=True)["status"] == "finished"
+    assert train_tiny(out, tiny_functions, resume=True)["status"] == "finished"
     _assert_same_params(out, straight_run)
 
 
@@ -219,13 +201,13 @@ def test_resume_of_a_run_killed_before_its_first_checkpoint_starts_afresh(
 
     _stop_after_first_chunk(monkeypatch, die)
     with pytest.raises(SystemExit):
-        _train(out, tiny_functions)
+        train_tiny(out, tiny_functions)
     monkeypatch.undo()
     assert json.loads((out / "run.json").read_text())["status"] == "running"
     assert not (out / "checkpoints").exists()
     with pytest.raises(ValueError, match="pass --resume"):
-        _train(out, tiny_functions)
-    assert _train(out, tiny_functions, resume=True)["status"] == "finished"
+        train_tiny(out, tiny_functions)
+    assert train_tiny(out, tiny_functions, resume=True)["status"] == "finished"
     err = " ".join(capsys.readouterr().err.split())  # rich wraps long lines
     assert "has no checkpoint yet (stopped before the first one): starting it afresh" in err
     _assert_same_params(out, straight_run)
@@ -239,7 +221,7 @@ def test_resume_with_other_agents_names_the_difference(straight_run):
         r"these options give 5"
     )
     with pytest.raises(ValueError, match=expected):
-        run_training(TINY, HP, {}, [0, 1, 2, 3, 5], straight_run, resume=True, progress=False)
+        run_training(TINY, RUN_HP, {}, [0, 1, 2, 3, 5], straight_run, resume=True, progress=False)
 
 
 def test_interrupt_is_one_line_without_traceback(monkeypatch, capsys):
@@ -292,7 +274,7 @@ def test_empty_out_is_refused(tmp_path, monkeypatch, capsys):
         assert "--out '' is empty" in capsys.readouterr().err
     assert os.listdir(tmp_path) == []
     with pytest.raises(ValueError, match="must not be empty"):
-        run_training(TINY, HP, {}, SEEDS, "", progress=False)
+        run_training(TINY, RUN_HP, {}, RUN_SEEDS, "", progress=False)
 
 
 def test_seed_keys_do_not_alias_and_keep_the_normal_range():
