@@ -218,8 +218,11 @@ class MjxSensors:
         robot_radius: float,
     ):
         self.mj_model = mujoco.MjModel.from_xml_string(xml)
-        self.model = mjx.put_model(self.mj_model, impl="jax")
-        self.data = mjx.make_data(self.model, impl="jax")
+        # This process's own device: in a multi-host job jax.devices()[0] belongs to
+        # process 0, and the constants of the compiled step must live where it runs.
+        device = jax.local_devices()[0]
+        self.model = mjx.put_model(self.mj_model, device=device, impl="jax")
+        self.data = mjx.make_data(self.model, device=device, impl="jax")
         self.rig, self.per_env_boxes = rig, per_env_boxes
         self.max_range, self.robot_radius = max_range, robot_radius
         obj = mujoco.mjtObj.mjOBJ_GEOM

@@ -7,9 +7,14 @@ cost of data collection and bookkeeping.
 
     python experiments/bench_train.py --preset paper --agents 8 32 64
     python experiments/bench_train.py --preset quick --agents 1 4 --chunk 100   # CPU
+    # several GPUs: the same populations on 1 and 2 devices, in one process
+    python experiments/bench_train.py --agents 64 128 --devices 1 2 --name bench_multigpu
 
-Writes ``results/bench_train.md`` / ``.json``. A warm-up chunk (compile + the first steps,
-before the buffer holds a batch) is excluded from the timing.
+Writes ``results/<name>.md`` / ``.json`` (``--name``, default bench_train). With several
+``--devices`` counts each population is timed on each, sharded as ``advisor-jax train
+--devices`` shards it (``advisor_jax.training.devices``), and the table gives the speed-up
+over the first count. A warm-up chunk (compile + the first steps, before the buffer holds a
+batch) is excluded from the timing.
 """
 
 from __future__ import annotations
@@ -24,18 +29,23 @@ import jax.numpy as jnp
 
 from advisor_jax.agent.config import preset
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.devices import pad, place, shard
 from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
 
 
-def bench(args: argparse.Namespace, n: int) -> dict:
-    """Agent env-steps/s of ``n`` agents: best of ``args.repeats`` chunks after a warm-up."""
+def bench(args: argparse.Namespace, n: int, devices: int) -> dict:
+    """Agent env-steps/s of ``n`` agents on ``devices`` devices: best of ``args.repeats``
+    chunks after a warm-up."""
     cfg, hp = preset(args.preset, args.agent)
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
-    _, init_fn, chunk_fn = population_functions(cfg)
+    placement = place(n, devices)
+    _, init_fn, chunk_fn = population_functions(cfg, placement)
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
-    state, step = init_fn(agent_keys(list(range(n)))), 0
+    hp = shard(pad(hp, placement), placement)
+    keys = shard(pad(agent_keys(list(range(n))), placement), placement)
+    state, step = init_fn(keys), 0  # padding agents (if any) step along and are not counted
 
     def chunk():
         nonlocal state, step
@@ -51,7 +61,9 @@ def bench(args: argparse.Namespace, n: int) -> dict:
     _, warmup = common.run_timed(warm_up)
     best = common.best_of(chunk, args.repeats)
     sps = n * args.chunk * cfg.envs_per_agent / best
-    return dict(agents=n, agent_steps_per_s=sps, seconds_per_chunk=best, warmup_s=warmup)
+    return dict(
+        agents=n, devices=devices, agent_steps_per_s=sps, seconds_per_chunk=best, warmup_s=warmup
+    )
 
 
 def main() -> None:
@@ -61,6 +73,14 @@ def main() -> None:
     parser.add_argument("--agents", type=int, nargs="+", default=[8, 32, 64])
     parser.add_argument("--chunk", type=int, default=500, help="env steps per jitted call")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--devices",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="device counts to time each population on (default 1)",
+    )
+    parser.add_argument("--name", default="bench_train", help="report file name")
     parser.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()
 
@@ -69,14 +89,17 @@ def main() -> None:
     print(f"device: {device}")
     rows = []
     for n in args.agents:
-        rows.append(bench(args, n))
-        print(
-            f"agents {n:4d}: {rows[-1]['agent_steps_per_s']:10.0f} agent env-steps/s, "
-            f"warm-up {rows[-1]['warmup_s']:.1f} s"
-        )
+        for d in args.devices:
+            rows.append(bench(args, n, d))
+            base = next(r for r in rows if r["agents"] == n)  # the first device count
+            rows[-1]["speedup"] = rows[-1]["agent_steps_per_s"] / base["agent_steps_per_s"]
+            print(
+                f"agents {n:4d} on {d} device(s): {rows[-1]['agent_steps_per_s']:10.0f} agent "
+                f"env-steps/s (x{rows[-1]['speedup']:.2f}), warm-up {rows[-1]['warmup_s']:.1f} s"
+            )
 
     result = dict(**where, preset=args.preset, agent=args.agent, chunk=args.chunk, rows=rows)
-    atomic_write_json(args.out / "bench_train.json", result)
+    atomic_write_json(args.out / f"{args.name}.json", result)
     lines = [
         "# Training throughput (full step: env + advisor + selector + update)",
         "",
@@ -84,15 +107,24 @@ def main() -> None:
         f"{device}, {result['date']}.",
         "",
         *common.markdown_table(
-            ("agents", "agent env-steps/s", "s per chunk"),
-            [(r["agents"], r["agent_steps_per_s"], r["seconds_per_chunk"]) for r in rows],
-            formats=("", ",.0f", ".3f"),
+            ("agents", "devices", "agent env-steps/s", "speed-up", "s per chunk"),
+            [
+                (
+                    r["agents"],
+                    r["devices"],
+                    r["agent_steps_per_s"],
+                    r["speedup"],
+                    r["seconds_per_chunk"],
+                )
+                for r in rows
+            ],
+            formats=("", "", ",.0f", ".2f", ".3f"),
             align="r",
         ),
         "",
         f"Command: `{common.command_line('experiments/bench_train.py', sys.argv[1:])}`",
     ]
-    common.write_markdown(args.out / "bench_train.md", lines)
+    common.write_markdown(args.out / f"{args.name}.md", lines)
 
 
 if __name__ == "__main__":

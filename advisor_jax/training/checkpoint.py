@@ -98,10 +98,21 @@ def _warn(message: str) -> None:
 
 
 def _manager(directory: Path) -> ocp.CheckpointManager:
+    directory = directory.absolute()
+    directory.mkdir(parents=True, exist_ok=True)  # orbax's create=True needs every process
     return ocp.CheckpointManager(
-        directory.absolute(),
-        options=ocp.CheckpointManagerOptions(max_to_keep=_KEEP, create=True),
+        directory,
+        options=ocp.CheckpointManagerOptions(
+            max_to_keep=_KEEP, create=False, multiprocessing_options=_this_process_only()
+        ),
     )
+
+
+def _this_process_only() -> ocp.options.MultiprocessingOptions:
+    """Checkpoints hold host (numpy) copies and are read and written by one process (the
+    run's writer, process 0 of a multi-host job): orbax must not wait for the others."""
+    index = jax.process_index()
+    return ocp.options.MultiprocessingOptions(primary_host=index, active_processes={index})
 
 
 def _storable(tree: Any) -> dict[str, Any]:
@@ -220,7 +231,7 @@ def save_tree(path: str | Path, tree: Any) -> Path:
     path = Path(path).absolute()
     tmp = path.with_name(path.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
-    with ocp.StandardCheckpointer() as ckptr:
+    with ocp.StandardCheckpointer(multiprocessing_options=_this_process_only()) as ckptr:
         ckptr.save(tmp, tree)
         ckptr.wait_until_finished()
     record_checksums(tmp)  # inside the directory: renamed together, never out of step
@@ -248,7 +259,7 @@ def load_tree(path: str | Path, abstract: Any | None = None) -> Any:
     if not verified:
         _warn(f"parameters at {path} have no recorded checksums (saved by an older version)")
     try:
-        with ocp.StandardCheckpointer() as ckptr:
+        with ocp.StandardCheckpointer(multiprocessing_options=_this_process_only()) as ckptr:
             tree = ckptr.restore(path, abstract) if abstract is not None else ckptr.restore(path)
     except Exception as e:
         raise ValueError(f"parameters at {path} are unreadable ({_short(e)})") from None

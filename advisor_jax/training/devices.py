@@ -112,6 +112,18 @@ def to_host(tree: Any) -> Any:
     return multihost_utils.process_allgather(tree, tiled=True)
 
 
+def from_writer(tree: Any, abstract: Any) -> Any:
+    """``tree`` as process 0 has it, on every process (other processes pass None): what
+    process 0 read from the run directory (a checkpoint on resume)."""
+    if jax.process_count() == 1:
+        return tree
+    from jax.experimental import multihost_utils
+
+    if tree is None:
+        tree = jax.tree.map(lambda a: np.zeros(a.shape, a.dtype), abstract)
+    return multihost_utils.broadcast_one_to_all(tree)
+
+
 def is_writer() -> bool:
     """Only process 0 writes the run directory."""
     return jax.process_index() == 0
@@ -126,7 +138,8 @@ def initialize_distributed(
     """``jax.distributed.initialize`` with the given values; those left None come from the
     environment as JAX reads it (``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES``,
     ``JAX_PROCESS_ID``, or a SLURM / Open MPI job's variables). Call before any other JAX
-    call of the process."""
+    call of the process. CPU processes exchange data through gloo (GPUs use NCCL)."""
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(
         coordinator_address=coordinator,
         num_processes=num_processes,

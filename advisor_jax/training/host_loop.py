@@ -51,6 +51,7 @@ from advisor_jax.training import checkpoint, reporting, runlock
 from advisor_jax.training.devices import (
     Placement,
     freeze_padding,
+    from_writer,
     is_writer,
     pad,
     place,
@@ -143,8 +144,9 @@ def _train_locked(
         return to_host(unpad(tree, placement))
 
     def save_checkpoint(state):
+        host = real(state)  # every process takes part in the gather; process 0 writes
         if writer:
-            checkpoint.save_step(out_dir / "checkpoints", step, real(state))
+            checkpoint.save_step(out_dir / "checkpoints", step, host)
 
     padded_hp = shard(pad(hp, placement), placement)
 
@@ -178,10 +180,17 @@ def _train_locked(
         summary["created"] = saved.get("created", summary["created"])
         if checkpoint.has_checkpoints(out_dir / "checkpoints"):
             abstract = jax.eval_shape(jax.vmap(trainer.init), keys)  # the real agents
-            state, step = checkpoint.restore_latest(
-                out_dir / "checkpoints", abstract, report=lambda m: console.print(f"warning: {m}")
-            )
-            state = start(state)
+            restored = None
+            if writer:  # process 0 reads the run directory; the others receive its state
+                state, step = checkpoint.restore_latest(
+                    out_dir / "checkpoints",
+                    abstract,
+                    report=lambda m: console.print(f"warning: {m}"),
+                )
+                restored = (state, np.int64(step))
+            step_shape = jax.ShapeDtypeStruct((), np.int64)
+            state, step = from_writer(restored, (abstract, step_shape))
+            state, step = start(state), int(step)
             if writer:
                 _trim_log(log_path, step)
             console.print(f"resuming {out_dir} at environment step {step}")

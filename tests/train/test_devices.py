@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -28,10 +29,11 @@ from tests.train.conftest import RUN_SEEDS, TINY, agent_slice, train_tiny
 WORKER = Path(__file__).with_name("devices_worker.py")
 
 
-def _worker(devices: int, mode: str, out: Path) -> None:
+def _worker(devices: int, *runs: tuple[str, Path]) -> None:
+    """Runs devices_worker.py: each (mode, out) of ``runs`` in one process on ``devices``."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     done = subprocess.run(
-        [sys.executable, str(WORKER), str(devices), mode, str(out)],
+        [sys.executable, str(WORKER), str(devices), *(f"{m}={out}" for m, out in runs)],
         env=env, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
@@ -64,7 +66,7 @@ def _assert_same_agents(got, reference):
 
 def test_two_devices_equal_one_and_resume_on_one(reference, tmp_path, tiny_functions):
     full, interrupted = tmp_path / "full", tmp_path / "interrupted"
-    _worker(2, "full", full)
+    _worker(2, ("full", full), ("interrupt", interrupted))  # one compile for both runs
     saved = json.loads((full / "run.json").read_text())
     assert saved["status"] == "finished" and saved["devices"] == 2
     assert len(saved["agents"]) == len(RUN_SEEDS)  # the padding agent is never written
@@ -72,10 +74,32 @@ def test_two_devices_equal_one_and_resume_on_one(reference, tmp_path, tiny_funct
     metrics = np.load(full / "metrics.npz")
     assert metrics["outcome"].shape == (len(RUN_SEEDS), TINY.episodes)
 
-    _worker(2, "interrupt", interrupted)  # checkpointed on 2 devices...
+    # checkpointed on 2 devices...
     assert json.loads((interrupted / "run.json").read_text())["status"] == "interrupted"
     train_tiny(interrupted, tiny_functions, resume=True)  # ...finished on one
     _assert_same_agents(_final_state(interrupted, reference[2]), reference)
+
+
+def test_two_processes_equal_one(reference, tmp_path):
+    """Two jax.distributed processes on localhost, one CPU device each, train one population
+    into one run directory (process 0 writes it): the same per-agent results."""
+    with socket.socket() as s:  # a free port for the coordinator
+        s.bind(("127.0.0.1", 0))
+        port = str(s.getsockname()[1])
+    out = tmp_path / "run"
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    argv = [sys.executable, str(WORKER), "1", f"full={out}"]
+    procs = [
+        subprocess.Popen([*argv, str(i), port], env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.STDOUT, text=True)
+        for i in range(2)
+    ]  # fmt: skip
+    outputs = [p.communicate(timeout=600)[0] for p in procs]
+    for p, text in zip(procs, outputs, strict=True):
+        assert p.returncode == 0, text[-3000:]
+    saved = json.loads((out / "run.json").read_text())
+    assert saved["status"] == "finished" and saved["processes"] == 2 and saved["devices"] == 2
+    _assert_same_agents(_final_state(out, reference[2]), reference)
 
 
 def test_one_device_checkpoint_resumes_on_three(reference, tmp_path, tiny_functions, monkeypatch):
@@ -91,7 +115,7 @@ def test_one_device_checkpoint_resumes_on_three(reference, tmp_path, tiny_functi
     with pytest.raises(KeyboardInterrupt):
         train_tiny(out, tiny_functions)
     monkeypatch.undo()
-    _worker(3, "resume", out)
+    _worker(3, ("resume", out))
     saved = json.loads((out / "run.json").read_text())
     assert saved["status"] == "finished" and saved["devices"] == 3
     _assert_same_agents(_final_state(out, reference[2]), reference)

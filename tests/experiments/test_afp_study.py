@@ -1,0 +1,186 @@
+"""experiments/afp_study.py and table1.py without training: how the study is cut into
+pieces, the Welch interval, and the summaries of hand-made run directories."""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
+
+import afp_study  # noqa: E402
+import table1  # noqa: E402
+
+from advisor_jax.agent.config import HPARAM_NAMES, preset  # noqa: E402
+
+
+@pytest.mark.parametrize(
+    "sizes, n_seeds, max_agents, pieces",
+    [
+        ((4, 2, 1), 16, 25, 6),
+        ((4, 2, 1), 16, 16, 8),
+        ((4, 2, 2), 16, 25, 12),
+        ((1,), 16, 25, 1),
+        ((3,), 5, 4, 5),
+    ],
+)
+def test_split_covers_every_agent_once(sizes, n_seeds, max_agents, pieces):
+    grid = {f"axis{i}": [float(v) for v in range(n)] for i, n in enumerate(sizes)}
+    seeds = list(range(n_seeds))
+    split = afp_study.split_population(grid, seeds, max_agents)
+    assert len(split) == pieces
+    agents = []
+    for sub, block in split:
+        assert list(sub) == list(grid)  # a sub-grid of every axis: run_training's product
+        assert len(block) * np.prod([len(v) for v in sub.values()]) <= max_agents
+        agents += [(*point, s) for point in itertools.product(*sub.values()) for s in block]
+    assert sorted(agents) == sorted(
+        (*point, s) for point in itertools.product(*grid.values()) for s in seeds
+    )
+
+
+def _study_args(**kw):
+    args = argparse.Namespace(
+        preset="paper",
+        agents=list(afp_study.AFP_AGENTS),
+        controls=None,
+        betas=[0.01, 0.1, 1.0, 10.0],
+        modes=[0.0, 1.0],
+        clip=[0.0],
+        seeds=16,
+        seed=0,
+        episodes=[500, 200],
+        eval_episodes=100,
+        max_agents=[16, 25],
+        hp=[],
+    )
+    vars(args).update(kw)
+    afp_study._check_options(args)
+    return args
+
+
+def test_study_pieces_names_and_sizes():
+    pieces = afp_study.study_pieces(_study_args())
+    names = [p.name for p in pieces]
+    assert len(set(names)) == len(names)
+    assert all(re.fullmatch(r"[A-Za-z0-9._-]+", n) for n in names)  # $OUT's allowed names
+    # 3 AfP types × 8 points + 2 controls, 16 seeds, at 500 and at 200 episodes
+    assert sum(p.n_agents for p in pieces) == 2 * (3 * 8 + 2) * 16
+    assert max(p.n_agents for p in pieces if p.episodes == 500) <= 16
+    assert max(p.n_agents for p in pieces if p.episodes == 200) <= 25
+    assert pieces[0].agent == "ADDPG+AfD" and pieces[0].episodes == 500
+
+
+def test_welch_interval_matches_scipy():
+    from scipy import stats
+
+    a, b = [0.9, 0.8, 0.85, 0.7, 0.95], [0.6, 0.55, 0.7, 0.5]
+    diff, half = afp_study.welch_ci95(a, b)
+    low, high = stats.ttest_ind(a, b, equal_var=False).confidence_interval()
+    assert diff == pytest.approx((low + high) / 2) and half == pytest.approx((high - low) / 2)
+
+
+def _fake_run(root: Path, agent: str, episodes: int, grid: dict, seeds, success, **extra):
+    """A finished run directory as run_training writes it (run.json, metrics.npz) with
+    ``success[i]`` the training-arena success of agent i (validation: half of it)."""
+    from advisor_jax.training.population import build_population
+
+    _, hp = preset("quick", agent)
+    _, agents = build_population(hp, grid, seeds)
+    n = len(agents)
+    run_dir = root / f"{agent.replace('+', '_')}-e{episodes}-{len(list(root.iterdir()))}"
+    run_dir.mkdir(parents=True)
+    evaluation = {
+        arena: {
+            "success": [s * f for s in success],
+            "collision": [0.0] * n,
+            "timeout": [1 - s * f for s in success],
+            "collision_speed": [0.1] * n,
+            "episodes": 10,
+        }
+        for arena, f in (("training", 1.0), ("validation", 0.5))
+    }
+    summary = {
+        "agent": agent,
+        "preset": "quick",
+        "device": "cpu",
+        "created": "2026-11-24T00:00",
+        "config": {"episodes": episodes},
+        "grid": grid,
+        "agents": agents,
+        "status": "finished",
+        "diverged": [],
+        "evaluation": evaluation,
+        **extra,
+    }
+    (run_dir / "run.json").write_text(json.dumps(summary))
+    # three chunks of 100 steps; agent i finishes in chunk 1 (env_steps 150): its value there
+    replaced = np.tile([0.1, 0.2, 0.9], (n, 1)) + np.arange(n)[:, None]
+    curves = np.linspace(0.0, 1.0, n * episodes).reshape(n, episodes)
+    np.savez(
+        run_dir / "metrics.npz",
+        **{
+            "log/step": np.array([100, 200, 300]),
+            "env_steps": np.full(n, 150),
+            "log/advisor/replaced": replaced,
+            "outcome": np.ones((n, episodes), np.int32),
+            "reward_per_step": curves,
+            "collision_speed": curves,
+        },
+    )
+    return run_dir
+
+
+def test_summarize_pools_pieces_and_compares_with_the_control(tmp_path):
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    grid = {"beta": [1.0], "beta_normalize": [0.0, 1.0], "clip_actor_target": [0.0]}
+    _fake_run(runs, "ATD3+AfDP", 6, grid, [0, 1], [0.9, 0.8, 0.3, 0.4])
+    _fake_run(runs, "ATD3+AfDP", 6, grid, [2], [0.7, 0.5])
+    _fake_run(runs, "ATD3+AfDP", 6, grid, [2], [0.0, 0.0])  # seed 2 again: counted once
+    _fake_run(runs, "ATD3+AfD", 6, {"clip_actor_target": [0.0]}, [0, 1, 2], [0.6, 0.5, 0.55])
+    _fake_run(runs, "ATD3+AfD", 6, {}, [3], [0.2], status="interrupted")  # left out
+    out = tmp_path / "out"
+    afp_study.summarize(argparse.Namespace(runs=runs, out=out, collapse_below=0.5))
+    record = json.loads((out / "afp_study.json").read_text())
+    points = {(p["agent"], p["beta_normalize"]): p for p in record["points"]}
+    literal = points[("ATD3+AfDP", 0.0)]
+    assert literal["seeds"] == [0, 1, 2]
+    assert literal["training"]["per_seed"] == pytest.approx([0.9, 0.8, 0.7])
+    assert literal["validation"]["collapsed"] == 3  # 0.45, 0.4, 0.35 < 0.5
+    assert literal["effect"]["training"]["diff"] == pytest.approx(0.8 - 0.55)
+    assert literal["settings"] == {"preset": "quick", "episodes": 6}  # β = 1: an axis
+    # last chunk of each agent's own training (chunk 1), means over seeds: agents 0, 1, 4
+    assert literal["diagnostics"]["advisor/replaced"] == pytest.approx(0.2 + (0 + 1 + 0) / 3)
+    assert points[("ATD3+AfDP", 1.0)]["training"]["collapsed"] == 2
+    assert "effect" not in points[("ATD3+AfD", 0.0)]
+    assert any("counted once" in n for n in record["provenance"]["notes"])
+    assert any("interrupted" in n for n in record["provenance"]["notes"])
+    assert (out / "afp_study.png").stat().st_size > 0
+    assert "Welch 95 % interval" in (out / "afp_study.md").read_text()
+
+
+def test_table1_json_schema(tmp_path):
+    chosen, literal = tmp_path / "chosen", tmp_path / "literal"
+    for root, extra in ((chosen, {"beta": [1.0], "beta_normalize": [1.0]}), (literal, {})):
+        root.mkdir()
+        for agent in ("ATD3+AfDP", "ADDPG+AfD"):
+            _fake_run(root, agent, 6, extra, [0, 1, 2], [0.9, 0.6, 0.75])
+    out = tmp_path / "out"
+    table1.summarize(argparse.Namespace(runs=[chosen, literal], out=out))
+    record = json.loads((out / "table1.json").read_text())
+    assert set(record) == {"seeds", "agents"} and record["seeds"] == 3
+    row = record["agents"]["ATD3+AfDP"]
+    assert row["training"] == pytest.approx([0.9, 0.6, 0.75])
+    assert row["validation"] == pytest.approx([0.45, 0.3, 0.375])
+    assert row["settings"] == {"preset": "quick", "episodes": 6, "beta": 1.0, "beta_normalize": 1.0}
+    assert set(row["settings"]) - {"preset", "episodes"} <= set(HPARAM_NAMES)
+    text = (out / "table1.md").read_text()
+    assert "beta=1, beta_normalize=1" in text and "the preset's hyperparameters" in text
