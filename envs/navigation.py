@@ -97,10 +97,7 @@ class NavEnv:
                 self.spawn_tables = geometry.make_spawn_tables(
                     self._boxes,
                     self.bounds,
-                    radius=cfg.robot_radius,
-                    start_clearance=cfg.start_clearance,
-                    goal_clearance=cfg.goal_clearance,
-                    min_goal_distance=cfg.min_goal_distance,
+                    **self._spawn_rules(),
                     max_goal_candidates=cfg.spawn_candidates,
                     cell=SPAWN_CELL,
                 )
@@ -211,6 +208,16 @@ class NavEnv:
                 raise ValueError(f"non-finite action {bad.tolist()}: V and ω must be finite")
         return self._step(state, action)
 
+    def _spawn_rules(self) -> dict:
+        """The clearances every spawn obeys (``geometry``), from the config."""
+        cfg = self.config
+        return dict(
+            radius=cfg.robot_radius,
+            start_clearance=cfg.start_clearance,
+            goal_clearance=cfg.goal_clearance,
+            min_goal_distance=cfg.min_goal_distance,
+        )
+
     def _spawn(self, key: jax.Array) -> tuple[jax.Array, jax.Array, geometry.Spawn]:
         """(next key, layout, spawn) of a new episode; its sensors are not read here."""
         if not self.procedural:
@@ -220,14 +227,7 @@ class NavEnv:
         key_next, key_layout, key_spawn = jax.random.split(key, 3)
         layout = layouts.procedural_boxes(key_layout)
         spawn = geometry.sample_spawn(
-            key_spawn,
-            layout,
-            self.bounds,
-            radius=cfg.robot_radius,
-            start_clearance=cfg.start_clearance,
-            goal_clearance=cfg.goal_clearance,
-            min_goal_distance=cfg.min_goal_distance,
-            n_candidates=cfg.spawn_candidates,
+            key_spawn, layout, self.bounds, **self._spawn_rules(), n_candidates=cfg.spawn_candidates
         )
         return key_next, layout, spawn
 

@@ -46,8 +46,8 @@ import envs
 from advisor_jax import __version__
 from advisor_jax.agent.config import HParams, TrainConfig
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
-from advisor_jax.fileio import atomic_write_json, atomic_write_text
-from advisor_jax.training import checkpoint, reporting, runlock
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training import checkpoint, plots, reporting, run_directory, runlock
 from advisor_jax.training.devices import (
     Placement,
     freeze_padding,
@@ -171,7 +171,7 @@ def _train_locked(
         except json.JSONDecodeError as e:
             raise ValueError(f"cannot resume {out_dir}: {run_file} is corrupt ({e})") from None
         current = json.loads(json.dumps({"config": summary["config"], "agents": agents}))
-        differences = _differences({k: saved.get(k) for k in current}, current)
+        differences = run_directory.differences({k: saved.get(k) for k in current}, current)
         if differences:
             raise ValueError(
                 f"cannot resume {out_dir}: its config or agents differ from these: "
@@ -192,7 +192,7 @@ def _train_locked(
             state, step = from_writer(restored, (abstract, step_shape))
             state, step = start(state), int(step)
             if writer:
-                _trim_log(log_path, step)
+                run_directory.trim_log(log_path, step)
             console.print(f"resuming {out_dir} at environment step {step}")
         else:  # killed before its first checkpoint: nothing to lose by starting again
             state = None
@@ -268,8 +268,8 @@ def _train_locked(
             diverged=np.asarray(state.diverged),
         )
         atomic_write_json(out_dir / "eval.json", evaluation)
-    reporting.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
-    reporting.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
+    plots.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
+    plots.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
 
     diverged = np.asarray(state.diverged)
     summary.update(
@@ -283,44 +283,6 @@ def _train_locked(
     atomic_write_json(run_file, summary)
     reporting.print_summary(console, summary, metrics, grid)
     return summary
-
-
-def _differences(saved, current, path: str = "") -> list[str]:
-    """Where two JSON values differ: 'config.episodes: run.json has 60, these options give
-    25', one entry per differing leaf (the first 5, then a count)."""
-    out: list[str] = []
-    if isinstance(saved, dict) and isinstance(current, dict):
-        for key in sorted(set(saved) | set(current)):
-            where = f"{path}.{key}" if path else key
-            if key not in saved or key not in current:
-                side = "run.json lacks it" if key not in saved else "these options lack it"
-                out.append(f"{where}: {side}")
-            else:
-                out += _differences(saved[key], current[key], where)
-    elif isinstance(saved, list) and isinstance(current, list) and len(saved) == len(current):
-        for i, (a, b) in enumerate(zip(saved, current, strict=True)):
-            out += _differences(a, b, f"{path}[{i}]")
-    elif saved != current:
-        out.append(f"{path}: run.json has {saved!r}, these options give {current!r}")
-    if not path and len(out) > 5:
-        out = out[:5] + [f"and {len(out) - 5} more"]
-    return out
-
-
-def _trim_log(log_path: Path, step: int) -> None:
-    """Drops the train_log.jsonl lines of chunks after ``step`` (the checkpoint resumed
-    from): they will be run, and logged, again."""
-    if not log_path.exists():
-        return
-    kept = []
-    for line in log_path.read_text().splitlines():
-        try:
-            if json.loads(line)["step"] > step:
-                continue
-        except (ValueError, KeyError, TypeError):
-            continue  # a line cut off by the kill
-        kept.append(line + "\n")
-    atomic_write_text(log_path, "".join(kept))
 
 
 def population_functions(cfg: TrainConfig, placement: Placement | None = None):

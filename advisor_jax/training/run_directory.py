@@ -1,4 +1,5 @@
-"""Reading back what ``run_training`` wrote: the config, the agents, one agent's actor."""
+"""Reading back what ``run_training`` wrote: the config, the agents, one agent's actor; and
+what a resume compares and trims."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import jax
 import numpy as np
 
 from advisor_jax.agent.config import TrainConfig, train_config_from_dict
+from advisor_jax.fileio import atomic_write_text
 from advisor_jax.training import checkpoint
 
 
@@ -41,3 +43,41 @@ def load_actor(run_dir: str | Path, index: int) -> tuple[TrainConfig, dict, dict
     params = checkpoint.load_tree(run_dir / "params")
     actor = jax.tree_util.tree_map(lambda x: np.asarray(x)[index], params["actor"])
     return cfg, agents[index], actor
+
+
+def differences(saved, current, path: str = "") -> list[str]:
+    """Where two JSON values differ: 'config.episodes: run.json has 60, these options give
+    25', one entry per differing leaf (the first 5, then a count)."""
+    out: list[str] = []
+    if isinstance(saved, dict) and isinstance(current, dict):
+        for key in sorted(set(saved) | set(current)):
+            where = f"{path}.{key}" if path else key
+            if key not in saved or key not in current:
+                side = "run.json lacks it" if key not in saved else "these options lack it"
+                out.append(f"{where}: {side}")
+            else:
+                out += differences(saved[key], current[key], where)
+    elif isinstance(saved, list) and isinstance(current, list) and len(saved) == len(current):
+        for i, (a, b) in enumerate(zip(saved, current, strict=True)):
+            out += differences(a, b, f"{path}[{i}]")
+    elif saved != current:
+        out.append(f"{path}: run.json has {saved!r}, these options give {current!r}")
+    if not path and len(out) > 5:
+        out = out[:5] + [f"and {len(out) - 5} more"]
+    return out
+
+
+def trim_log(log_path: Path, step: int) -> None:
+    """Drops the train_log.jsonl lines of chunks after ``step`` (the checkpoint resumed
+    from): they will be run, and logged, again."""
+    if not log_path.exists():
+        return
+    kept = []
+    for line in log_path.read_text().splitlines():
+        try:
+            if json.loads(line)["step"] > step:
+                continue
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut off by the kill
+        kept.append(line + "\n")
+    atomic_write_text(log_path, "".join(kept))
