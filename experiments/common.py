@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import functools
+import json
 import math
 import os
 import platform
@@ -27,6 +28,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -234,6 +236,106 @@ def write_markdown(path: str | os.PathLike, lines: Sequence[str], echo: bool = F
     print(f"wrote {path}", file=sys.stderr)
     if echo:
         print(text, end="")
+
+
+# -- populations trained with the tool (table1.py, afp_study.py) ----------------------------
+
+SMALL_RUN_FILES = ("run.json", "eval.json", "metrics.npz", "train_log.jsonl", "episodes.csv")
+"""What a summary reads from a run directory: the files worth copying off a GPU machine
+(never ``checkpoints/`` or ``params/``, which hold every agent's replay buffer and weights)."""
+
+
+def hp_overrides(items: Sequence[str]) -> dict[str, float]:
+    """``--hp NAME=V`` items as ``{name: value}``, one value each (several values are a
+    grid, not a setting); unknown names and names given twice are refused."""
+    from advisor_jax.training.population import parse_assignments
+
+    parsed = parse_assignments(items, "--hp")
+    several = [
+        f"{name}={','.join(f'{v:g}' for v in values)}"
+        for name, values in parsed.items()
+        if len(values) != 1
+    ]
+    if several:
+        raise ValueError(f"--hp takes one value per name, got {', '.join(several)}")
+    return {name: values[0] for name, values in parsed.items()}
+
+
+def run_status(run_dir: Path) -> str | None:
+    """The ``status`` of ``run_dir/run.json`` ("finished", "interrupted", "running"), None
+    when there is no run there yet."""
+    run_file = Path(run_dir) / "run.json"
+    if not run_file.is_file():
+        return None
+    return json.loads(run_file.read_text()).get("status", "running")
+
+
+def train_or_resume(run_dir: Path, cfg, hp, grid, seeds, **kwargs) -> str:
+    """Trains one population into ``run_dir`` (``run_training``'s keywords pass through):
+    not at all when it finished there, resumed (``resume=True``) when a run was started
+    there and stopped, afresh otherwise. Returns "finished", "resumed" or "trained"."""
+    status = run_status(run_dir)
+    if status == "finished":
+        return "finished"
+    from advisor_jax.training.host_loop import run_training
+
+    run_training(cfg, hp, grid, seeds, run_dir, resume=status is not None, **kwargs)
+    return "trained" if status is None else "resumed"
+
+
+def finished_runs(root: Path) -> tuple[list[tuple[Path, dict]], list[str]]:
+    """Every run directory below ``root`` (one holding run.json) whose run finished, sorted
+    by path, with its run.json; and a note for each one that did not finish."""
+    runs, notes = [], []
+    for run_file in sorted(Path(root).rglob("run.json")):
+        summary = json.loads(run_file.read_text())
+        if summary.get("status") == "finished":
+            runs.append((run_file.parent, summary))
+        else:
+            notes.append(f"{run_file.parent}: status {summary.get('status')!r}, left out")
+    return runs, notes
+
+
+def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
+    """The settings of one agent of a run: its preset, its training episodes and the
+    hyperparameters in which it differs from that preset's defaults (``beta``,
+    ``beta_normalize``, ...). A run.json without a ``preset`` was trained from ``paper``."""
+    from advisor_jax.agent.config import HPARAM_NAMES, preset
+
+    name = summary.get("preset", "paper")
+    defaults = preset(name, summary["agent"])[1]
+    settings: dict[str, Any] = {"preset": name, "episodes": summary["config"]["episodes"]}
+    for field in HPARAM_NAMES:
+        if not math.isclose(agent_row[field], getattr(defaults, field), rel_tol=1e-6):
+            settings[field] = agent_row[field]
+    return settings
+
+
+def seeds_with_ci(
+    ax, x: float, values: Sequence[float], color, label=None, log_x=False, width: float = 0.15
+) -> None:
+    """One group's per-seed values as jittered dots around ``x`` (spread ``width``, a
+    factor of 10**width on a log axis) and its mean with the Student-t 95 % interval."""
+    from advisor_jax.training.reporting import mean_ci95
+
+    v = np.asarray([u for u in values if u is not None and np.isfinite(u)], np.float64)
+    if v.size == 0:
+        return
+    jitter = np.random.default_rng(v.size).uniform(-width / 2, width / 2, v.size)
+    xs = x * 10.0**jitter if log_x else x + jitter
+    ax.scatter(xs, v, s=10, color=color, alpha=0.45, linewidths=0)
+    mean, half = mean_ci95(v)
+    ax.errorbar(
+        x,
+        mean,
+        yerr=0.0 if math.isnan(half) else half,
+        fmt="o",
+        ms=5,
+        capsize=4,
+        color=color,
+        markeredgecolor="black",
+        label=label,
+    )
 
 
 # -- the car runner's subject (bench_runner.py, probe_cpu_caches.py) ------------------------

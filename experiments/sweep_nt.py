@@ -20,7 +20,8 @@ import common
 import numpy as np
 
 from advisor_jax.agent.config import preset
-from advisor_jax.training.reporting import group_agents, mean_ci95, save_png
+from advisor_jax.training.plots import save_png
+from advisor_jax.training.reporting import group_agents, mean_ci95
 
 
 def main() -> None:

@@ -2,11 +2,20 @@
 
     # train (one compile per agent type; every seed of a type is one vmapped program)
     python experiments/table1.py train --runs runs/table1 --preset paper --episodes 200 --seeds 4
-    # aggregate whatever is in runs/table1 into results/table1.md and .png
-    python experiments/table1.py summarize --runs runs/table1 --out results
+    # the same agent types at other settings (applied to every type), into another --runs
+    python experiments/table1.py train --runs runs/table1_chosen --seeds 16 \\
+        --hp beta=1 --hp beta_normalize=1
+    # aggregate into results/table1.md, .json and .png: the first --runs is the table of
+    # table1.json, every further one (e.g. the literal-paper rows) a table of its own
+    python experiments/table1.py summarize --runs runs/table1_chosen runs/table1 --out results
 
-Every agent type is evaluated on the same 100 episodes per arena (same key), so the rows
-are paired. Cells are mean ± half-width of the Student-t 95 % interval over seeds.
+``train`` skips agent types that finished in --runs and resumes interrupted ones. Every
+agent type is evaluated on the same 100 episodes per arena (same key: the first seed), so
+the rows are paired. Cells are mean ± half-width of the Student-t 95 % interval over seeds;
+the figure shows every seed. table1.json: ``{"seeds": N, "agents": {"ATD3+AfDP":
+{"training": [per-seed success, 0..1], "validation": [...], "settings": {"preset", "episodes",
+hyperparameters that differ from the preset}}, ...}}``; N is the fewest seeds of any agent
+type, diverged seeds (no evaluation) are left out of the lists.
 """
 
 from __future__ import annotations
@@ -15,13 +24,16 @@ import argparse
 import dataclasses
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import common
 import numpy as np
 
 from advisor_jax.agent.config import PAPER_AGENTS, preset
-from advisor_jax.training.reporting import mean_ci95, moving_average, save_png
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.plots import save_png
+from advisor_jax.training.reporting import mean_ci95, moving_average
 
 PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
     "DDPG": (72.2, 71.3),
@@ -31,26 +43,31 @@ PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
     "ADDPG+AfDP": (88.1, 85.2),
     "ATD3+AfDP": (90.8, 89.4),
 }
+ORDER = (*PAPER_AGENTS, "TD3", "ATD3", "ATD3+AfD")
+ARENAS = ("training", "validation")
 
 
 def train(args) -> None:
-    from advisor_jax.training.host_loop import run_training
-
+    try:
+        overrides = common.hp_overrides(args.hp)
+    except ValueError as e:
+        sys.exit(str(e))
+    command = common.command_line("experiments/table1.py", sys.argv[1:])
     for agent in args.agents:
         cfg, hp = preset(args.preset, agent)
         cfg = dataclasses.replace(cfg, episodes=args.episodes or cfg.episodes)
-        out = args.runs / agent.replace("+", "_")
-        run_training(
+        how = common.train_or_resume(
+            args.runs / agent.replace("+", "_"),
             cfg,
-            hp,
+            dataclasses.replace(hp, **overrides),
             {},
             list(range(args.seed, args.seed + args.seeds)),
-            out,
             eval_episodes=args.eval_episodes,
             checkpoint_every=0,
             progress=False,
-            meta={"preset": args.preset},
+            meta={"preset": args.preset, "table1": {"hp": overrides, "command": command}},
         )
+        print(f"{agent}: {how}", file=sys.stderr)
 
 
 def _fmt(mean: float, half: float) -> str:
@@ -59,76 +76,195 @@ def _fmt(mean: float, half: float) -> str:
     return f"{mean:.1f}" + ("" if np.isnan(half) else f" ± {half:.1f}")
 
 
-def summarize(args) -> None:
+def load_table(root: Path) -> list[dict]:
+    """The finished agent types under ``root`` (one run directory each), in Table 1's
+    order: name, run dir, run.json, settings, per-seed success per arena (0..1)."""
+    runs, notes = common.finished_runs(root)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+    rows = []
+    for run_dir, summary in runs:
+        agent = summary["agent"]
+        settings = [common.preset_differences(summary, row) for row in summary["agents"]]
+        if any(s != settings[0] for s in settings):
+            sys.exit(f"{run_dir}: its agents differ in more than the seed; not a Table 1 row")
+        ev = summary["evaluation"]
+        success = {a: [v for v in ev[a]["success"] if v is not None] for a in ARENAS if a in ev}
+        rows.append(
+            {
+                "agent": agent,
+                "dir": run_dir,
+                "summary": summary,
+                "settings": settings[0],
+                "success": success,
+                "rank": ORDER.index(agent) if agent in ORDER else len(ORDER),
+            }
+        )
+    return sorted(rows, key=lambda r: (r["rank"], r["agent"]))
+
+
+def _settings_text(settings: dict) -> str:
+    hp = ", ".join(f"{k}={v:g}" for k, v in settings.items() if k not in ("preset", "episodes"))
+    return f"preset `{settings['preset']}`, {settings['episodes']} episodes" + (
+        f", {hp}" if hp else ", the preset's hyperparameters (the paper's Eq. 2)"
+    )
+
+
+def _table_lines(rows: list[dict], root: Path) -> list[str]:
+    first = rows[0]["summary"]
+    distinct = {json.dumps(r["settings"], sort_keys=True) for r in rows}
+    settings = (
+        _settings_text(rows[0]["settings"])
+        if len(distinct) == 1
+        else "per row (see the settings column)"
+    )
+    table = []
+    for r in rows:
+        ev = r["summary"]["evaluation"]
+        cells = [_fmt(*mean_ci95([100 * v for v in r["success"][a]])) for a in ARENAS]
+        speed = [v for v in ev["training"]["collision_speed"] if v is not None]
+        paper = PAPER_TABLE1.get(r["agent"])
+        diverged = len(r["summary"].get("diverged", []))
+        table.append(
+            (
+                r["agent"],
+                f"{len(r['summary']['agents'])}" + (f" ({diverged} diverged)" if diverged else ""),
+                *cells,
+                _fmt(*mean_ci95(speed)) if speed else "–",
+                f"{paper[0]:.1f} / {paper[1]:.1f}" if paper else "–",
+                _settings_text(r["settings"]) if len(distinct) > 1 else "",
+            )
+        )
+    header = [
+        "agent",
+        "seeds",
+        "training env",
+        "validation env",
+        "collision speed, eval (m/s)",
+        "paper (train / val)",
+        "settings",
+    ]
+    if len(distinct) == 1:
+        header.pop()
+        table = [t[:-1] for t in table]
+    return [
+        f"## `{root}`: {settings}",
+        "",
+        f"Seeds {[a['seed'] for a in first['agents']]}; device {first['device']}, trained "
+        f"{first['created'][:10]}; evaluation: deterministic actor, "
+        f"{first['evaluation']['training']['episodes']} episodes per arena, the same episodes "
+        "for every agent type. Mean ± 95 % CI over seeds (%).",
+        "",
+        *common.markdown_table(header, table, align="lrrrrrl"),
+        "",
+    ]
+
+
+def plot(tables: list[tuple[Path, list[dict]]], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    runs = []
-    for agent in PAPER_AGENTS + ("TD3", "ATD3"):
-        run_dir = args.runs / agent.replace("+", "_")
-        if (run_dir / "run.json").is_file():
-            runs.append((agent, run_dir, json.loads((run_dir / "run.json").read_text())))
-    if not runs:
-        sys.exit(f"no runs under {args.runs}")
-    first = runs[0][2]
-    cfg = first["config"]
+    fig = plt.figure(figsize=(13, 8.5), constrained_layout=True)
+    grid = fig.add_gridspec(2, 2)
+    ax = fig.add_subplot(grid[0, :])
+    agents = sorted(
+        {r["agent"] for _, rows in tables for r in rows},
+        key=lambda a: (ORDER.index(a) if a in ORDER else len(ORDER), a),
+    )
+    groups = [(t, a) for t in range(len(tables)) for a in ARENAS]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for g, (t, arena) in enumerate(groups):
+        root, rows = tables[t]
+        offset = 0.8 * (g + 0.5) / len(groups) - 0.4
+        for j, r in enumerate(rows):
+            label = f"{root.name}: {arena}" if j == 0 else None
+            values = [100 * v for v in r["success"].get(arena, [])]
+            x = agents.index(r["agent"]) + offset
+            common.seeds_with_ci(ax, x, values, colors[g % len(colors)], label=label, width=0.1)
+            if r["agent"] in PAPER_TABLE1:
+                paper = PAPER_TABLE1[r["agent"]][ARENAS.index(arena)]
+                first = g == 0 and j == 0
+                ax.scatter(
+                    x, paper, marker="_", s=250, color="black", label="paper" if first else None
+                )
+    ax.set_xticks(range(len(agents)), agents)
+    ax.set_ylabel("success rate (%)")
+    ax.set_ylim(-3, 103)
+    ax.set_title("evaluation success per seed (dots), mean ± 95 % CI (bars), paper (black)")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+
+    curves = [fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[1, 1])]
+    window = 1
+    for r in tables[0][1]:
+        metrics = np.load(r["dir"] / "metrics.npz")
+        episodes = np.arange(1, metrics["outcome"].shape[1] + 1)
+        window = max(1, min(150, len(episodes) // 5))
+        for c, values in zip(
+            curves, (metrics["reward_per_step"], metrics["collision_speed"]), strict=True
+        ):
+            smooth = moving_average(values.astype(np.float64), window)
+            with warnings.catch_warnings():  # no collision yet in a window: NaN, not a value
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean, std = np.nanmean(smooth, axis=0), np.nanstd(smooth, axis=0)
+            (line,) = c.plot(episodes, mean, label=r["agent"])
+            c.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.15)
+    curves[0].set_title(
+        f"reward per step (moving average, w={window}; Fig. 8), {tables[0][0].name}"
+    )
+    curves[1].set_title(f"collision speed, m/s (moving average, w={window}; Fig. 9)")
+    for c in curves:
+        c.set_xlabel("episode")
+        c.grid(alpha=0.3)
+    curves[0].legend(fontsize=8)
+    save_png(fig, path)
+
+
+def summarize(args) -> None:
+    tables = []
+    for root in args.runs:
+        rows = load_table(root)
+        if not rows:
+            sys.exit(f"no finished runs under {root}")
+        tables.append((root, rows))
+    main_rows = tables[0][1]
+    record = {
+        "seeds": min(len(r["summary"]["agents"]) for r in main_rows),
+        "agents": {
+            r["agent"]: {
+                **{a: [round(v, 6) for v in r["success"][a]] for a in ARENAS},
+                "settings": r["settings"],
+            }
+            for r in main_rows
+        },
+    }
+    atomic_write_json(args.out / "table1.json", record)
+    plot(tables, args.out / "table1.png")
     lines = [
         "# Table 1 (simulation): success rate of each agent type",
         "",
-        f"{cfg['episodes']} training episodes per agent in `{cfg['arena']}`, seeds "
-        f"{[a['seed'] for a in first['agents']]}; evaluation: deterministic actor, "
-        f"{first['evaluation']['training']['episodes']} episodes per arena, the same episodes "
-        "for every agent. Mean ± 95 % CI over seeds (%). Device: "
-        f"{first['device']}; date {first['created'][:10]}.",
+        f"`table1.json` holds the first table (`{tables[0][0]}`), per seed.",
+        "",
     ]
-    table = []
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4), constrained_layout=True)
-    for agent, run_dir, summary in runs:
-        ev = summary["evaluation"]
-        cells = []
-        for arena in ("training", "validation"):
-            success = [100 * v for v in ev[arena]["success"] if v is not None]
-            cells.append(_fmt(*mean_ci95(success)))
-        speed = [v for v in ev["training"]["collision_speed"] if v is not None]
-        paper = PAPER_TABLE1.get(agent)
-        paper_cell = f"{paper[0]:.1f} / {paper[1]:.1f}" if paper else "–"
-        speed_cell = _fmt(*mean_ci95(speed)) if speed else "–"
-        table.append((agent, len(summary["agents"]), *cells, speed_cell, paper_cell))
-        metrics = np.load(run_dir / "metrics.npz")
-        episodes = np.arange(1, metrics["outcome"].shape[1] + 1)
-        window = max(1, min(150, len(episodes) // 5))
-        for ax, values in zip(
-            axes, (metrics["reward_per_step"], metrics["collision_speed"]), strict=True
-        ):
-            curves = moving_average(values.astype(np.float64), window)
-            mean, std = np.nanmean(curves, axis=0), np.nanstd(curves, axis=0)
-            (line,) = ax.plot(episodes, mean, label=agent)
-            ax.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.15)
-    axes[0].set_title(f"reward per step (moving average, w={window}; Fig. 8)")
-    axes[1].set_title(f"collision speed, m/s (moving average, w={window}; Fig. 9)")
-    for ax in axes:
-        ax.set_xlabel("episode")
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    save_png(fig, args.out / "table1.png")
-    train_argv = ["train", "--runs", args.runs, "--preset", first.get("preset", "paper"),
-                  "--episodes", cfg["episodes"], "--seeds", len(first["agents"])]  # fmt: skip
-    summarize_argv = ["summarize", "--runs", args.runs, "--out", args.out]
+    for root, rows in tables:
+        lines += _table_lines(rows, root)
+    commands = [
+        c
+        for _, rows in tables
+        for c in dict.fromkeys((r["summary"].get("table1") or {}).get("command") for r in rows)
+        if c
+    ]
+    summarize_argv = ["summarize", "--runs", *args.runs, "--out", args.out]
     lines += [
+        "![per-seed success and learning curves](table1.png)",
         "",
-        *common.markdown_table(
-            ("agent", "seeds", "training env", "validation env", "collision speed, eval (m/s)",
-             "paper (train / val)"),
-            table,
-        ),
-        "",
-        "![learning curves](table1.png)",
-        "",
-        f"Commands: `{common.command_line('experiments/table1.py', train_argv)}` then "
-        f"`{common.command_line('experiments/table1.py', summarize_argv)}`.",
-    ]  # fmt: skip
+        "Commands: "
+        + ", ".join(f"`{c}`" for c in commands)
+        + (", then " if commands else "")
+        + f"`{common.command_line('experiments/table1.py', summarize_argv)}`.",
+    ]
     common.write_markdown(args.out / "table1.md", lines, echo=True)
 
 
@@ -143,8 +279,21 @@ def main() -> None:
     t.add_argument("--seeds", type=int, default=6)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--eval-episodes", type=int, default=100)
+    t.add_argument(
+        "--hp",
+        action="append",
+        default=[],
+        metavar="NAME=V",
+        help="a hyperparameter for every agent type (repeatable), e.g. beta=1",
+    )
     s = sub.add_parser("summarize")
-    s.add_argument("--runs", type=Path, default=Path("runs/table1"))
+    s.add_argument(
+        "--runs",
+        type=Path,
+        nargs="+",
+        default=[Path("runs/table1")],
+        help="run folders; the first is table1.json's table",
+    )
     s.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()
     train(args) if args.command == "train" else summarize(args)
