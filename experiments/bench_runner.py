@@ -39,7 +39,11 @@ import common  # noqa: E402
 import numpy as np  # noqa: E402
 
 from advisor_jax.contract.zones import reduce_to_zones  # noqa: E402
-from advisor_jax.runner.cyclelog import JsonlLog, read_log  # noqa: E402
+from advisor_jax.runner.cyclelog import (  # noqa: E402
+    JsonlLog,
+    log_header,  # noqa: E402
+    read_log,
+)
 from advisor_jax.runner.drive import AckermannDrive  # noqa: E402
 from advisor_jax.runner.lidar_zones import (  # noqa: E402
     free_distances,
@@ -47,7 +51,7 @@ from advisor_jax.runner.lidar_zones import (  # noqa: E402
     zone_minima_mm,
     zone_table,
 )
-from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
+from advisor_jax.runner.loop import Controller, LoopConfig, run_loop  # noqa: E402
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
 
 

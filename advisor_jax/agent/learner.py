@@ -43,9 +43,10 @@ Metrics (flat dicts of scalars, the same keys for every algorithm): ``critic_ste
 ``loss/critic`` (mean over critics), ``q/mean`` (Q(S, A) over critics and batch),
 ``q/target`` (mean Q̂) and ``grad_norm/critic``; ``actor_step`` gives ``loss/actor``,
 ``advisor/replaced`` (fraction of the batch where AfP replaced Â; 0 without AfP and for
-DDPG/TD3), ``grad_norm/actor`` and the diagnostics of ``actor_diagnostics`` (``diag/...``:
-∇_aQ scale, Eq. 2 step, advisor gap, Q gain, saturated heads). A non-finite loss, Q or
-gradient norm marks the agent diverged; a ``diag/`` value may be NaN (not defined).
+DDPG/TD3), ``grad_norm/actor`` and the diagnostics of ``diagnostics.actor_diagnostics``
+(``diag/...``: ∇_aQ scale, Eq. 2 step, advisor gap, Q gain, saturated heads). A
+non-finite loss, Q or gradient norm marks the agent diverged; a ``diag/`` value may be NaN
+(not defined).
 
 Two readings are selectable per agent, as hyperparameters (0 = the paper, the default):
 ``beta_normalize`` makes Eq. (2)'s step scale-free (``update_rules.eq2_step``) and
@@ -64,6 +65,7 @@ import optax
 from flax import struct
 
 from advisor_jax.agent.config import AgentConfig, HParams
+from advisor_jax.agent.diagnostics import actor_diagnostics
 from advisor_jax.agent.networks import Critic, apply_critics, init_actor, init_critics, make_actor
 from advisor_jax.agent.replay_buffer import ReplayState, Transition, replay_sample
 from advisor_jax.agent.update_rules import (
@@ -271,40 +273,6 @@ def make_learner(cfg: AgentConfig) -> Learner:
         actor_step=actor_step,
         update=update,
     )
-
-
-def actor_diagnostics(
-    actions: jax.Array, advisor_actions: jax.Array, grad_q: jax.Array, targets, afp: bool
-) -> Metrics:
-    """What an actor update did, per batch (all under ``diag/``; NaN where not defined).
-
-    * ``diag/grad_q_rms``: rms_i ‖∇_aQ_1(s_i, π(s_i))‖ (every algorithm).
-    * ``diag/step``: mean ‖step_i‖ of Eq. (2) (β∇_aQ or its scale-free form; ADDPG family).
-    * ``diag/advisor_gap``: mean ‖a_adv,i − π(s_i)‖ over the samples AfP replaced.
-    * ``diag/q_gain``: mean Q(s_i, a_adv,i) − Q(s_i, â_i), before replacement (AfP).
-    * ``diag/saturated``: fraction of output heads at their bounds (sigmoid V within 0.01 of
-      0 or 1, tanh ω within 0.01 of ±1): a saturated head passes almost no gradient.
-    """
-    norm = lambda x: jnp.sqrt(jnp.sum(jnp.square(x), axis=-1))  # noqa: E731
-    nan = jnp.full((), jnp.nan, actions.dtype)
-    v, w = actions[..., 0], actions[..., 1]
-    saturated = jnp.stack([(v < 0.01) | (v > 0.99), jnp.abs(w) > 0.99], axis=-1)
-    out = {
-        "diag/grad_q_rms": jnp.sqrt(jnp.mean(jnp.square(norm(grad_q)))),
-        "diag/step": nan,
-        "diag/advisor_gap": nan,
-        "diag/q_gain": nan,
-        "diag/saturated": jnp.mean(saturated.astype(actions.dtype)),
-    }
-    if targets is not None:
-        gap = norm(advisor_actions - actions)
-        count = jnp.sum(targets.replaced)
-        gap_sum = jnp.sum(jnp.where(targets.replaced, gap, 0.0))
-        out["diag/step"] = jnp.mean(norm(targets.step))
-        out["diag/advisor_gap"] = jnp.where(count > 0, gap_sum / jnp.maximum(count, 1), jnp.nan)
-        if afp:
-            out["diag/q_gain"] = jnp.mean(targets.q_gain)
-    return out
 
 
 def _all_finite(metrics: Metrics) -> jax.Array:

@@ -31,9 +31,10 @@ import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
 from advisor_jax.runner import cyclelog, hardware  # noqa: E402
+from advisor_jax.runner.cyclelog import log_header  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive, DiffDrive  # noqa: E402
 from advisor_jax.runner.errors import RunnerError  # noqa: E402
-from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop  # noqa: E402
+from advisor_jax.runner.loop import Controller, LoopConfig, run_loop  # noqa: E402
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
 from advisor_jax.runner.policy import load_policy  # noqa: E402
 from advisor_jax.runner.replay import replay  # noqa: E402

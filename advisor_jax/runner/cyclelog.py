@@ -20,8 +20,10 @@ shortest round-trip repr, so a replay reads back bit-identical inputs and float3
 
 from __future__ import annotations
 
+import datetime
 import json
 import os
+import time
 from collections.abc import Iterator
 from typing import IO, Any
 
@@ -110,3 +112,44 @@ def read_log(path: str | os.PathLike) -> tuple[dict, Iterator[dict]]:
     if records[0].get("schema") != LOG_SCHEMA:
         raise ReplayError(f"{path}: log schema {records[0].get('schema')!r} is not {LOG_SCHEMA}")
     return records[0], (r for r in records[1:] if r.get("type") == "cycle")
+
+
+def cycle_record(
+    i, now, scan, pose, result, ran, io_error, *, with_points, compute_ms, warm_ms
+) -> dict:
+    """One control cycle's line of the log (``run_loop`` writes it after each cycle)."""
+    return {
+        "type": "cycle",
+        "i": i,
+        "t": now,
+        "wall": time.time(),
+        "ran": ran,
+        "state": result.state,
+        "reason": result.reason,
+        "message": result.message,
+        "scan": encode_scan(scan, with_points),
+        "pose": encode_pose(pose),
+        "obs": floats(result.obs),
+        "action": floats(result.action),
+        "physical": None if result.physical is None else list(result.physical),
+        "command": None if result.command is None else result.command.as_dict(),
+        "io_error": io_error,
+        "compute_ms": compute_ms,
+        "warm_ms": warm_ms,
+    }
+
+
+def log_header(controller: Any, policy: Any, argv: list[str] | None = None) -> dict:
+    """The log's first line: what replay needs, plus provenance."""
+    meta = getattr(policy, "meta", {})
+    return {
+        "type": "header",
+        "schema": LOG_SCHEMA,
+        "policy_dir": os.path.abspath(policy.directory) if hasattr(policy, "directory") else None,
+        "weights_sha256": meta.get("weights_sha256"),
+        "config_hash": meta.get("config_hash"),
+        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "numpy": np.__version__,
+        "argv": list(argv) if argv is not None else None,
+        **controller.describe(),
+    }

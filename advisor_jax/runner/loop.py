@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import datetime
 import math
-import os
 import time
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -244,7 +242,7 @@ def run_loop(
             if log is not None:
                 new_scan = scan is not logged_scan
                 log.write(
-                    _record(
+                    cyclelog.cycle_record(
                         summary.cycles - 1,
                         now,
                         scan,
@@ -289,41 +287,3 @@ def _stop_quietly(motor: MotorDriver) -> None:
         motor.stop()
     except Exception:  # nothing more can be done from here; the next cycle tries again
         pass
-
-
-def _record(i, now, scan, pose, result, ran, io_error, *, with_points, compute_ms, warm_ms) -> dict:
-    return {
-        "type": "cycle",
-        "i": i,
-        "t": now,
-        "wall": time.time(),
-        "ran": ran,
-        "state": result.state,
-        "reason": result.reason,
-        "message": result.message,
-        "scan": cyclelog.encode_scan(scan, with_points),
-        "pose": cyclelog.encode_pose(pose),
-        "obs": cyclelog.floats(result.obs),
-        "action": cyclelog.floats(result.action),
-        "physical": None if result.physical is None else list(result.physical),
-        "command": None if result.command is None else result.command.as_dict(),
-        "io_error": io_error,
-        "compute_ms": compute_ms,
-        "warm_ms": warm_ms,
-    }
-
-
-def log_header(controller: Controller, policy: Any, argv: list[str] | None = None) -> dict:
-    """The log's first line: what replay needs, plus provenance."""
-    meta = getattr(policy, "meta", {})
-    return {
-        "type": "header",
-        "schema": cyclelog.LOG_SCHEMA,
-        "policy_dir": os.path.abspath(policy.directory) if hasattr(policy, "directory") else None,
-        "weights_sha256": meta.get("weights_sha256"),
-        "config_hash": meta.get("config_hash"),
-        "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "numpy": np.__version__,
-        "argv": list(argv) if argv is not None else None,
-        **controller.describe(),
-    }

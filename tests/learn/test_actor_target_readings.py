@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from advisor_jax.agent.config import HParams, validate_hparams
-from advisor_jax.agent.learner import actor_diagnostics
+from advisor_jax.agent.diagnostics import actor_diagnostics
 from advisor_jax.agent.update_rules import addpg_actor_targets, eq2_step
 from tests.learn.test_learner_rules import ACTIONS, ADVISOR, OBS, quadratic_q
 

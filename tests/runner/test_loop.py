@@ -10,9 +10,9 @@ import pytest
 from runner_fakes import FakeClock, RecordingMotor, ScriptedSource, moving_pose, ring_scan
 
 from advisor_jax.runner import cli
-from advisor_jax.runner.cyclelog import JsonlLog
+from advisor_jax.runner.cyclelog import JsonlLog, log_header
 from advisor_jax.runner.drive import AckermannDrive, DiffCommand, DiffDrive
-from advisor_jax.runner.loop import Controller, LoopConfig, log_header, run_loop
+from advisor_jax.runner.loop import Controller, LoopConfig, run_loop
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig, Pose, Scan
 from advisor_jax.runner.replay import replay
 

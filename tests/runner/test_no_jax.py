@@ -63,7 +63,7 @@ SCRIPT = textwrap.dedent(
         drive.DiffDrive(0.4), loop.LoopConfig(max_cycles=8),
     )
     log = cyclelog.JsonlLog(log_path)
-    log.write(loop.log_header(ctrl, policy))
+    log.write(cyclelog.log_header(ctrl, policy))
     motor = hardware.PrintMotorDriver()
     summary = loop.run_loop(ctrl, Scans(), Poses(), motor, log=log, clock=clock, sleep=clock.sleep)
     assert summary.cycles == 8 and not summary.stops, summary
