@@ -48,3 +48,12 @@ def assert_same_training(got, want, start, what: str) -> None:
         assert gap <= bound, (
             f"{name}: ‖Δ‖ = {gap:.3g} exceeds {rel:g} × the {moved:.3g} training moved it"
         )
+
+
+def assert_same_agent(got, want, start, i: int) -> None:
+    """Agent ``i``'s training state along two code paths: episode log and learner by
+    ``assert_same_training``, completed episodes and counted env steps exactly."""
+    assert_same_training(got.log, want.log, start.log, f"episode log of agent {i}")
+    assert_same_training(got.learner, want.learner, start.learner, f"learner of agent {i}")
+    assert int(got.episodes) == int(want.episodes)
+    assert int(got.env_steps) == int(want.env_steps)

@@ -257,8 +257,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
         update_actor = update_index % cfg.delay == 0
 
         def skip_actor(s):
-            shapes = jax.eval_shape(actor_step, s, batch, hp, episode)[1]
-            return s, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+            return s, nan_like(jax.eval_shape(actor_step, s, batch, hp, episode)[1])
 
         state, actor_metrics = jax.lax.cond(
             update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
@@ -273,6 +272,14 @@ def make_learner(cfg: AgentConfig) -> Learner:
         actor_step=actor_step,
         update=update,
     )
+
+
+def nan_like(shapes: Any) -> Any:
+    """NaN (floats) or zero (integers) arrays of the given shapes: "not computed"."""
+    fill = lambda s: jnp.full(  # noqa: E731
+        s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.floating) else 0, s.dtype
+    )
+    return jax.tree.map(fill, shapes)
 
 
 def _all_finite(metrics: Metrics) -> jax.Array:

@@ -37,7 +37,7 @@ from flax import struct
 import envs
 from advisor_jax.agent.advisor import advisor_action, arena_advisor
 from advisor_jax.agent.config import HParams, TrainConfig
-from advisor_jax.agent.learner import LearnerState, make_learner
+from advisor_jax.agent.learner import LearnerState, make_learner, nan_like
 from advisor_jax.agent.networks import make_actor
 from advisor_jax.agent.noise import OUState, ou_init, ou_reset, ou_step
 from advisor_jax.agent.replay_buffer import (
@@ -191,7 +191,7 @@ def make_train(cfg: TrainConfig) -> Trainer:
 
         def no_updates(learner_state):
             metrics = jax.eval_shape(run_updates, learner_state)[1]
-            return learner_state, _nan_like(metrics), jnp.zeros((), bool)
+            return learner_state, nan_like(metrics), jnp.zeros((), bool)
 
         ready = (step_index + 1) * n_envs >= agent.warmup  # unbatched: same for all agents
         learner_state, metrics, bad = jax.lax.cond(ready, run_updates, no_updates, state.learner)
@@ -234,11 +234,3 @@ def _write_episodes(log: EpisodeLog, episodes, env_state, actor_steps, collision
         collision_speed=log.collision_speed.at[slot].set(speed, mode="drop"),
         actor_steps=log.actor_steps.at[slot].set(actor_steps, mode="drop"),
     )
-
-
-def _nan_like(shapes):
-    """NaN (floats) or zero (integers) arrays of the given shapes: "not computed"."""
-    fill = lambda s: jnp.full(
-        s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.floating) else 0, s.dtype
-    )
-    return jax.tree_util.tree_map(fill, shapes)

@@ -23,7 +23,7 @@ import pytest
 
 from advisor_jax.training import checkpoint, reporting
 from advisor_jax.training.population import agent_keys
-from tests.compare import assert_same_training
+from tests.compare import assert_same_agent
 from tests.train.conftest import RUN_SEEDS, TINY, agent_slice, train_tiny
 
 WORKER = Path(__file__).with_name("devices_worker.py")
@@ -57,10 +57,7 @@ def _assert_same_agents(got, reference):
     start, want, _ = reference
     for i in range(len(RUN_SEEDS)):
         got_i, want_i, start_i = (agent_slice(t, i) for t in (got, want, start))
-        assert_same_training(got_i.log, want_i.log, start_i.log, f"episode log of agent {i}")
-        assert_same_training(got_i.learner, want_i.learner, start_i.learner, f"agent {i}")
-        assert int(got_i.episodes) == int(want_i.episodes)
-        assert int(got_i.env_steps) == int(want_i.env_steps)
+        assert_same_agent(got_i, want_i, start_i, i)
         assert bool(got_i.diverged) == bool(want_i.diverged)
 
 

@@ -8,7 +8,7 @@ import pytest
 
 import envs
 from advisor_jax.training.population import agent_keys
-from tests.compare import assert_same_training
+from tests.compare import assert_same_agent
 from tests.train.conftest import GOOD, TINY, agent_slice, run_chunks
 
 
@@ -21,11 +21,7 @@ def _assert_same(a, b, what):
 def _check_against_single_runs(state, initial, single_runs):
     """Every healthy agent of ``state`` equals its lone run (``assert_same_training``)."""
     for i, single in enumerate(single_runs):
-        vm, start = agent_slice(state, i), agent_slice(initial, i)
-        assert_same_training(vm.log, single.log, start.log, f"episode log of agent {i}")
-        assert_same_training(vm.learner, single.learner, start.learner, f"learner of agent {i}")
-        assert int(vm.episodes) == int(single.episodes)
-        assert int(vm.env_steps) == int(single.env_steps)
+        assert_same_agent(agent_slice(state, i), single, agent_slice(initial, i), i)
 
 
 def test_vmapped_population_equals_single_runs(population, initial_state, single_runs):
