@@ -21,9 +21,10 @@ that ``resume=True`` continues an interrupted run. At the end it writes, into ``
 
 Safety: every option is checked before anything is written or compiled; the run
 takes ``out_dir`` exclusively (``runlock``); SIGTERM is handled like Ctrl-C (checkpoint,
-status "interrupted"); ``resume=True`` of a run killed before its first checkpoint starts it
-afresh, and one whose newest checkpoint is corrupt resumes from the previous good one
-(``checkpoint.restore_latest``), saying so.
+status "interrupted", metrics.npz and episodes.csv of the episodes so far); ``resume=True``
+of a run killed before its first checkpoint starts it afresh, and one whose newest
+checkpoint is corrupt resumes from the previous good one (``checkpoint.restore_latest``),
+saying so.
 """
 
 from __future__ import annotations
@@ -235,6 +236,7 @@ def _train_locked(
         save_checkpoint(state)
         summary.update(status="interrupted", env_steps_per_agent=step)
         if writer:
+            _write_episode_metrics(out_dir, real(state), hp, n_total, log_path, agents)
             atomic_write_json(run_file, summary)
         what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
         console.print(
@@ -249,10 +251,7 @@ def _train_locked(
         return summary
 
     checkpoint.save_tree(out_dir / "params", _final_params(state))
-    metrics = reporting.episode_metrics(state, hp, n_total)
-    series = reporting.read_training_log(log_path, len(agents))
-    metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
-    reporting.write_metrics(out_dir, metrics, agents)
+    metrics, series = _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents)
     evaluation = {}
     if eval_episodes:
         evaluators = {
@@ -306,6 +305,16 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
         donate_argnums=0,
     )
     return trainer, init_fn, chunk_fn
+
+
+def _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents):
+    """metrics.npz and episodes.csv of the episodes played so far (an interrupted run's too:
+    its analysis need not wait for --resume); returns (metrics, per-chunk log series)."""
+    metrics = reporting.episode_metrics(state, hp, n_total)
+    series = reporting.read_training_log(log_path, len(agents))
+    metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
+    reporting.write_metrics(out_dir, metrics, agents)
+    return metrics, series
 
 
 def _final_params(state) -> dict:

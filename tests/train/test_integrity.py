@@ -186,6 +186,10 @@ def test_sigterm_saves_a_checkpoint_and_resume_finishes_the_run(
     saved = json.loads((out / "run.json").read_text())
     assert saved["status"] == "interrupted" and saved["env_steps_per_agent"] == 40
     assert checkpoint.verify_checksums(out / "checkpoints" / "40")
+    partial = np.load(out / "metrics.npz")  # the episodes so far are not lost
+    played = partial["outcome"] > 0
+    assert played.any() and not played.all()
+    assert (out / "episodes.csv").read_text().count("\n") == 1 + played.sum()
     monkeypatch.undo()
     assert train_tiny(out, tiny_functions, resume=True)["status"] == "finished"
     _assert_same_params(out, straight_run)
