@@ -1,0 +1,234 @@
+"""Where the learner's time goes: a device trace of ``Learner.update``, kernel by kernel.
+
+Issue 17 asks for the breakdown before any speed work. This script runs the exact update
+step that training runs (``bench_learner.make_update_loop``: replay sampling, critic step,
+delayed actor step, vmapped over ``--agents``) under ``jax.profiler.trace``, reads back the
+Perfetto trace that JAX writes, and sums the device time of every kernel by name and by
+kind (GEMM, elementwise/fusion, reduction, copy/transpose, other). It also reports how much
+of the wall-clock time of a call the device was busy (the rest is launch and host overhead)
+and, in the same process, the fp32 matmul ceiling.
+
+    python experiments/profile_learner.py --agents 128 1       # on the GPU
+    python experiments/profile_learner.py --small --agents 2   # CPU smoke run
+
+Writes ``results/profile_learner.md`` and ``.json`` (``--out``); with ``--keep-trace`` also
+the gzipped trace and the compiled HLO of the first population size (for a closer look).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import gzip
+import json
+import re
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import common
+import jax
+from bench_learner import fill_replay, make_update_loop
+
+from advisor_jax.agent.config import parse_agent
+from advisor_jax.fileio import atomic_write_json
+
+# Kernel kinds, tried in order on the lower-cased kernel name.
+KINDS = (
+    ("gemm", re.compile(r"gemm|xmma|cutlass|wgmma|cublas|sm90_|sm80_|matmul|dot|triton_gemm")),
+    ("copy/transpose", re.compile(r"transpose|copy|memcpy|memset|concatenate|slice|pad")),
+    ("reduction", re.compile(r"reduce|reduction|row_reduction|column_reduction|scatter|sort")),
+    ("elementwise fusion", re.compile(r"fusion|loop_|input_|broadcast|select|add|multiply")),
+)
+
+
+def kind_of(name: str) -> str:
+    low = name.lower()
+    for kind, pattern in KINDS:
+        if pattern.search(low):
+            return kind
+    return "other"
+
+
+def device_events(trace: dict) -> tuple[list[dict], str]:
+    """Kernel events of the trace and where they came from.
+
+    On a GPU, JAX's trace has a process per device with a thread per CUDA stream (one event
+    per kernel) beside "XLA Ops" and "XLA Modules" threads that repeat the same time at op
+    and module level: only the stream threads are kept. Elsewhere (a CPU) all events are.
+    """
+    events = [e for e in trace.get("traceEvents", []) if e.get("ph") == "X" and "dur" in e]
+    meta = [e for e in trace.get("traceEvents", []) if e.get("ph") == "M"]
+    process = {e["pid"]: e.get("args", {}).get("name", "") for e in meta
+               if e.get("name") == "process_name"}  # fmt: skip
+    thread = {(e["pid"], e["tid"]): e.get("args", {}).get("name", "") for e in meta
+              if e.get("name") == "thread_name"}  # fmt: skip
+    devices = {pid for pid, name in process.items() if re.search(r"/device:gpu", name, re.I)}
+    for pattern in (r"^stream", r"xla ops"):
+        chosen = [
+            e
+            for e in events
+            if e["pid"] in devices
+            and re.search(pattern, thread.get((e["pid"], e["tid"]), ""), re.I)
+        ]
+        if chosen:
+            return chosen, f"device threads matching {pattern!r}"
+    return events, "all events (no GPU process in the trace)"
+
+
+def busy_us(events: list[dict]) -> float:
+    """Union of the events' intervals (µs): time the device had at least one kernel running."""
+    spans = sorted((e["ts"], e["ts"] + e["dur"]) for e in events)
+    total, end = 0.0, -float("inf")
+    for start, stop in spans:
+        if stop <= end:
+            continue
+        total += stop - max(start, end)
+        end = stop
+    return total
+
+
+def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
+    learner, loop = make_update_loop(cfg, n_updates)
+    keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
+    states = jax.jit(jax.vmap(learner.init))(keys)
+    replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
+        cfg.buffer_size, keys
+    )
+    hlo = loop.lower(states, replays, keys).compile().as_text()
+    for _ in range(2):  # compile and warm up outside the trace
+        states = jax.block_until_ready(loop(states, replays, keys))
+    t0 = time.perf_counter()
+    states = jax.block_until_ready(loop(states, replays, keys))
+    wall_untraced = time.perf_counter() - t0
+    with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
+        t0 = time.perf_counter()
+        states = jax.block_until_ready(loop(states, replays, keys))
+        wall = time.perf_counter() - t0
+    files = sorted(trace_dir.rglob("perfetto_trace.json.gz"))
+    if not files:
+        raise RuntimeError(f"jax.profiler wrote no perfetto_trace.json.gz under {trace_dir}")
+    trace = json.loads(gzip.decompress(files[-1].read_bytes()))
+    events, source = device_events(trace)
+    by_name: dict[str, list] = collections.defaultdict(lambda: [0, 0.0])
+    for e in events:
+        by_name[e["name"]][0] += 1
+        by_name[e["name"]][1] += e["dur"]
+    by_kind: dict[str, float] = collections.defaultdict(float)
+    for name, (_, dur) in by_name.items():
+        by_kind[kind_of(name)] += dur
+    kernel_total = sum(d for _, d in by_name.values())
+    top = sorted(by_name.items(), key=lambda kv: -kv[1][1])[:40]
+    per_update = 1e6 / (n_agents * n_updates)  # µs of wall per agent-update, times seconds
+    return dict(
+        agents=n_agents,
+        updates=n_updates,
+        wall_s=wall,
+        wall_untraced_s=wall_untraced,
+        agent_updates_per_s=n_agents * n_updates / wall_untraced,
+        device_busy_us=busy_us(events),
+        kernel_sum_us=kernel_total,
+        events=len(events),
+        event_source=source,
+        threads=sorted({str(e.get("tid")) for e in events})[:20],
+        by_kind_us=dict(sorted(by_kind.items(), key=lambda kv: -kv[1])),
+        top=[dict(name=n, kind=kind_of(n), calls=c, total_us=d) for n, (c, d) in top],
+        us_per_agent_update_wall=wall * per_update,
+        sample_event_args=sorted(events[0].get("args", {})) if events else [],
+        _trace_file=str(files[-1]),
+        _hlo=hlo,
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--agent", default="ATD3+AfDP")
+    parser.add_argument("--agents", type=int, nargs="+", default=[128, 1])
+    parser.add_argument("--updates", type=int, default=20, help="updates in the traced call")
+    parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--keep-trace", action="store_true",
+                        help="also write the first size's trace and HLO (gzipped)")  # fmt: skip
+    args = parser.parse_args()
+    overrides = {}
+    if args.small:
+        overrides = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
+                         buffer_size=4096, batch_size=128)  # fmt: skip
+    cfg = parse_agent(args.agent, **overrides)
+    where = common.provenance()
+    ceiling = common.matmul_ceiling(2048 if args.small else 8192) / 1e12
+    print(f"device: {where['device']} ({where['backend']}); fp32 matmul {ceiling:.1f} TFLOP/s")
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i, n in enumerate(args.agents):
+        with tempfile.TemporaryDirectory() as tmp:
+            row = profile(cfg, n, args.updates, Path(tmp))
+            if args.keep_trace and i == 0:
+                shutil.copy(row["_trace_file"], args.out / "profile_learner_trace.json.gz")
+                (args.out / "profile_learner_hlo.txt.gz").write_bytes(
+                    gzip.compress(row["_hlo"].encode())
+                )
+        for k in ("_trace_file", "_hlo"):
+            row.pop(k)
+        rows.append(row)
+        busy = 100 * row["device_busy_us"] / (1e6 * row["wall_s"])
+        print(f"agents {n}: {row['agent_updates_per_s']:,.0f} agent-updates/s, device busy "
+              f"{busy:.0f} % of the traced call")  # fmt: skip
+        for kind, us in row["by_kind_us"].items():
+            print(f"  {kind:20s} {100 * us / row['kernel_sum_us']:5.1f} %")
+
+    result = dict(**where, agent=cfg.name, matmul_ceiling_tflops=ceiling, rows=rows)
+    atomic_write_json(args.out / "profile_learner.json", result)
+    lines = [
+        "# Where an update's time goes",
+        "",
+        f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
+        f"{cfg.critic_state_hidden}+{cfg.critic_hidden}; `Learner.update` × {args.updates} "
+        "in one jitted scan, traced with `jax.profiler`.",
+        "",
+        f"Device: {where['device']} ({where['backend']}), jax {where['jax']}, {where['date']}. "
+        f"fp32 matmul ceiling in the same process: {ceiling:.1f} TFLOP/s.",
+    ]
+    for row in rows:
+        total = row["kernel_sum_us"]
+        lines += [
+            "",
+            f"## {row['agents']} agents",
+            "",
+            f"{row['agent_updates_per_s']:,.0f} agent-updates/s untraced; traced call "
+            f"{1e3 * row['wall_s']:.1f} ms, device busy {row['device_busy_us'] / 1e3:.1f} ms "
+            f"({100 * row['device_busy_us'] / (1e6 * row['wall_s']):.0f} %), kernel time summed "
+            f"{total / 1e3:.1f} ms over {row['events']} kernels.",
+            "",
+            *common.markdown_table(
+                ("kind", "ms", "% of kernel time"),
+                [(k, v / 1e3, 100 * v / total) for k, v in row["by_kind_us"].items()],
+                formats=("", ".2f", ".1f"),
+            ),
+            "",
+            *common.markdown_table(
+                ("kernel", "kind", "calls", "ms", "%"),
+                [
+                    (
+                        t["name"][:90].replace("|", "/"),
+                        t["kind"],
+                        t["calls"],
+                        t["total_us"] / 1e3,
+                        100 * t["total_us"] / total,
+                    )
+                    for t in row["top"][:25]
+                ],
+                formats=("", "", "d", ".2f", ".1f"),
+            ),  # fmt: skip
+        ]
+    command = common.command_line("experiments/profile_learner.py", sys.argv[1:])
+    lines += ["", f"Command: `{command}`", ""]
+    common.write_markdown(args.out / "profile_learner.md", lines)
+
+
+if __name__ == "__main__":
+    main()
