@@ -306,8 +306,9 @@ def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
     defaults = preset(name, summary["agent"])[1]
     settings: dict[str, Any] = {"preset": name, "episodes": summary["config"]["episodes"]}
     for field in HPARAM_NAMES:
-        if not math.isclose(agent_row[field], getattr(defaults, field), rel_tol=1e-6):
-            settings[field] = agent_row[field]
+        value = agent_row.get(field, getattr(defaults, field))  # older runs lack newer fields
+        if not math.isclose(value, getattr(defaults, field), rel_tol=1e-6):
+            settings[field] = value
     return settings
 
 

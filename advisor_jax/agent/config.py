@@ -26,6 +26,14 @@ from typing import Literal
 import numpy as np
 from flax import struct
 
+from advisor_jax.agent.baselines import (
+    BASELINE_AGENTS,
+    BASELINE_NAMES,
+    BASELINE_PRESETS,
+    BaselineConfig,
+    check_baseline_learner,
+)
+
 Algo = Literal["ddpg", "addpg", "td3", "atd3"]
 ALGOS: tuple[str, ...] = ("ddpg", "addpg", "td3", "atd3")
 
@@ -62,8 +70,15 @@ class AgentConfig:
     Ignored (taken as 1) for ddpg / addpg."""
     learning_starts: int = 0
     """Transitions in the buffer before the first update; 0 means the batch size."""
+    baseline: BaselineConfig | None = None
+    """A Table 1 baseline (LfD): prior-knowledge phases before the RL learner ``algo``
+    (ddpg or td3, no advisor switches); None for the paper's agents."""
 
     def __post_init__(self):
+        if self.baseline is not None:
+            if not isinstance(self.baseline, BaselineConfig):
+                raise ValueError(f"baseline must be a BaselineConfig, got {self.baseline!r}")
+            check_baseline_learner(self.algo, self.advisor_data, self.advisor_policy)
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         if self.advisor_policy and self.algo in ("ddpg", "td3"):
@@ -111,7 +126,9 @@ class AgentConfig:
 
     @property
     def name(self) -> str:
-        """Paper-style name, e.g. ``ATD3+AfDP``."""
+        """Paper-style name, e.g. ``ATD3+AfDP``; a baseline's is its own (``LfD``)."""
+        if self.baseline is not None:
+            return self.baseline.name
         suffix = {
             (True, True): "+AfDP",
             (True, False): "+AfD",
@@ -122,13 +139,28 @@ class AgentConfig:
 
 
 def parse_agent(name: str, **overrides) -> AgentConfig:
-    """``"ATD3+AfDP"`` (any case) → AgentConfig. Extra keyword args override fields."""
-    parts = name.strip().lower().replace(" ", "").split("+")
+    """``"ATD3+AfDP"`` or ``"LfD"`` (any case) → AgentConfig. Extra keyword args override
+    fields. A baseline name is recognised before the split on ``+`` (docs/baselines.md);
+    its learner is DDPG unless ``algo`` is overridden (``--baseline learner=td3``)."""
+    plain = name.strip().lower().replace(" ", "")
+    if plain in BASELINE_AGENTS:
+        overrides = {"algo": "ddpg", "advisor_data": False, "advisor_policy": False, **overrides}
+        overrides.setdefault("baseline", BaselineConfig(kind=BASELINE_AGENTS[plain]))
+        return AgentConfig(**overrides)
+    if overrides.get("baseline") is not None:
+        raise ValueError(f"agent {name!r} is not a baseline; a baseline config needs 'LfD'")
+    parts = plain.split("+")
     algo, flags = parts[0], parts[1:]
+    if algo in BASELINE_AGENTS:
+        raise ValueError(
+            f"unknown agent {name!r}: a baseline takes no advisor switches; use "
+            f"{BASELINE_NAMES[BASELINE_AGENTS[algo]]!r}"
+        )
     if algo not in ALGOS:
         raise ValueError(
             f"unknown agent {name!r}: the algorithm must be one of {', '.join(ALGOS)} "
-            f"(optionally +AfD, +AfP or +AfDP), e.g. 'ATD3+AfDP'"
+            f"(optionally +AfD, +AfP or +AfDP), e.g. 'ATD3+AfDP', or a baseline: "
+            f"{', '.join(BASELINE_NAMES.values())}"
         )
     known = {"afd": (True, False), "afp": (False, True), "afdp": (True, True)}
     data = policy = False
@@ -166,6 +198,8 @@ class HParams:
     target_noise_clip: float = 0.2  # c, Table A4
     beta_normalize: float = 0.0  # 0: Eq. (2)'s step is β∇_aQ (paper); 1: scale-free, β/rms‖∇_aQ‖
     clip_actor_target: float = 0.0  # 0: Â as printed (paper); 1: Â clipped to the action box
+    demo_episodes: float = 250.0  # D (LfD only): demonstration episodes, counted in N_total
+    bc_lr: float = 1e-3  # imitation learning rate (LfD only; mbmf.py's 1e-3)
 
 
 HPARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(HParams))
@@ -187,6 +221,8 @@ _HPARAM_RANGES = {
     "target_noise_clip": (0.0, math.inf, True, False),
     "beta_normalize": (0.0, 1.0, True, True),
     "clip_actor_target": (0.0, 1.0, True, True),
+    "demo_episodes": (1.0, math.inf, True, False),
+    "bc_lr": (0.0, math.inf, False, False),
 }
 # Switches: traced like every hyperparameter (one sweep can hold both settings), 0 or 1 only.
 _SWITCHES = ("beta_normalize", "clip_actor_target")
@@ -240,6 +276,11 @@ class TrainConfig:
         _positive("chunk_steps", self.chunk_steps)
         if self.max_episode_steps < 0:
             raise ValueError(f"max_episode_steps must be >= 0, got {self.max_episode_steps}")
+        if self.agent.baseline is not None and self.envs_per_agent != 1:
+            raise ValueError(
+                f"envs_per_agent={self.envs_per_agent} with the {self.agent.name} baseline: "
+                "its phase boundaries are episode counts, so it needs envs_per_agent=1"
+            )
 
 
 # Presets --------------------------------------------------------------------------------
@@ -254,27 +295,44 @@ PRESETS: dict[str, tuple[dict, dict, dict]] = {
         dict(buffer_size=50_000, batch_size=500, policy_delay=3),
         dict(arena="physical", episodes=200),
         dict(lr_actor=1e-4, eps_start=0.9, eps_decay=0.001, advisor_episodes=100.0,
-             target_noise=0.05, target_noise_clip=0.1),
+             target_noise=0.05, target_noise_clip=0.1, demo_episodes=100.0),
     ),
     # Small networks and budgets that train in minutes on a 2-core CPU.
     "quick": (
         dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=20_000, batch_size=128),
         dict(episodes=60, chunk_steps=500),
-        dict(lr_actor=1e-3, advisor_episodes=30.0, eps_decay=0.01),
+        dict(lr_actor=1e-3, advisor_episodes=30.0, eps_decay=0.01, demo_episodes=30.0),
     ),
 }  # fmt: skip
+# The baselines' static settings per preset (BaselineConfig overrides) are in
+# ``baselines.BASELINE_PRESETS``; their HParams (demo_episodes = N_T) are above.
 
 
-def preset(name: str, agent: str = "ATD3+AfDP", **agent_overrides) -> tuple[TrainConfig, HParams]:
+def preset(
+    name: str, agent: str = "ATD3+AfDP", baseline: dict | None = None, **agent_overrides
+) -> tuple[TrainConfig, HParams]:
     """A named preset for one agent type: (static config, hyperparameters).
 
-    ``agent_overrides`` replace AgentConfig fields of the preset (e.g. ``batch_size=64``).
+    ``agent_overrides`` replace AgentConfig fields of the preset (e.g. ``batch_size=64``);
+    ``baseline`` replaces BaselineConfig fields of a baseline agent (``learner`` sets its
+    ``algo``), as parsed by ``baselines.parse_baseline_settings``.
     """
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     agent_kw, train_kw, hp_kw = PRESETS[name]
     agent_cfg = parse_agent(agent, **{**agent_kw, **agent_overrides})
+    if agent_cfg.baseline is not None:
+        settings = {**BASELINE_PRESETS[name], **(baseline or {})}
+        algo = settings.pop("learner", agent_cfg.algo)
+        agent_cfg = dataclasses.replace(
+            agent_cfg, algo=algo, baseline=dataclasses.replace(agent_cfg.baseline, **settings)
+        )
+    elif baseline:
+        raise ValueError(
+            f"unknown baseline setting {', '.join(map(repr, baseline))}: agent {agent!r} is "
+            "not a baseline"
+        )
     return TrainConfig(agent=agent_cfg, **train_kw), HParams(**hp_kw)
 
 
@@ -284,6 +342,8 @@ def train_config_from_dict(d: dict) -> TrainConfig:
         agent = dict(d["agent"])
         for name in ("actor_hidden", "critic_hidden"):
             agent[name] = tuple(agent[name])
+        if agent.get("baseline") is not None:
+            agent["baseline"] = BaselineConfig(**agent["baseline"])
         return TrainConfig(**{**d, "agent": AgentConfig(**agent)})
     except (KeyError, TypeError) as e:
         raise ValueError(f"not a training configuration: {e}") from None

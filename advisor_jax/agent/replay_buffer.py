@@ -100,18 +100,33 @@ def _check_batch(batch: Transition, capacity: int) -> int:
     return n
 
 
-def replay_add(state: ReplayState, batch: Transition) -> ReplayState:
-    """Writes the E transitions of ``batch`` (leading axis E ≤ capacity), oldest overwritten."""
+def replay_add(
+    state: ReplayState, batch: Transition, valid: jax.Array | None = None
+) -> ReplayState:
+    """Writes the E transitions of ``batch`` (leading axis E ≤ capacity), oldest overwritten.
+
+    ``valid`` ([E] bool, optional) keeps only the marked transitions, in order; the others
+    are dropped (a baseline's offline phase holds the environment: nothing to store).
+    """
     capacity = state.data.reward.shape[0]
     n = _check_batch(batch, capacity)
-    slots = (state.position + jnp.arange(n, dtype=jnp.int32)) % capacity  # [E]
+    mode = None
+    if valid is None:
+        slots = (state.position + jnp.arange(n, dtype=jnp.int32)) % capacity  # [E]
+        added = n
+    else:
+        mode = "drop"
+        valid = jnp.broadcast_to(valid, (n,))
+        rank = jnp.cumsum(valid.astype(jnp.int32)) - 1  # [E] place among the kept ones
+        slots = jnp.where(valid, (state.position + rank) % capacity, capacity)  # out: dropped
+        added = jnp.sum(valid, dtype=jnp.int32)
     data = jax.tree.map(
-        lambda buf, new: buf.at[slots].set(new.astype(buf.dtype)), state.data, batch
+        lambda buf, new: buf.at[slots].set(new.astype(buf.dtype), mode=mode), state.data, batch
     )
     return ReplayState(
         data=data,
-        position=((state.position + n) % capacity).astype(jnp.int32),
-        size=jnp.minimum(state.size + n, capacity).astype(jnp.int32),
+        position=((state.position + added) % capacity).astype(jnp.int32),
+        size=jnp.minimum(state.size + added, capacity).astype(jnp.int32),
     )
 
 

@@ -9,6 +9,11 @@ from typing import Annotated, Literal
 
 import tyro
 
+from advisor_jax.agent.baselines import (
+    BASELINE_AGENTS,
+    check_baseline_hparams,
+    parse_baseline_settings,
+)
 from advisor_jax.agent.config import PRESETS, TrainConfig, preset
 from advisor_jax.training.population import SEED_MAX, check_seed, parse_assignments
 
@@ -21,13 +26,15 @@ class TrainArgs:
       advisor-jax train                                    # quick CPU run, ATD3+AfDP
       advisor-jax train --preset paper --agent ADDPG+AfD --seeds 6 \
           --grid advisor_episodes=0,125,250,375,500
+      advisor-jax train --preset paper --agent LfD --seeds 6 --grid demo_episodes=10,50,250
     """
 
     preset: Literal["quick", "paper", "physical"] = "quick"
     """Starting point: quick (small networks, minutes on a CPU), paper (Tables A2/A4,
     simulation), physical (Tables A2/A4, physical column, physical arena)."""
     agent: str = "ATD3+AfDP"
-    """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1)."""
+    """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1), or
+    the baseline LfD (advisor demonstrations, imitation, then DDPG; docs/baselines.md)."""
     seeds: int = 1
     """Independent seeds per grid point."""
     seed: int = 0
@@ -36,6 +43,10 @@ class TrainArgs:
     """Hyperparameter overrides NAME=VALUE, e.g. --hp lr_actor=1e-4 beta=0.05."""
     grid: tuple[str, ...] = ()
     """Hyperparameter sweep NAME=V1,V2,... (cartesian product over all given names)."""
+    baseline: tuple[str, ...] = ()
+    """Baseline (LfD) static settings KEY=VALUE: learner=ddpg|td3, bc_steps, bc_batch,
+    critic_warmup, e.g. --baseline learner=td3 bc_steps=2000. Its sweepable settings are
+    hyperparameters: --hp/--grid demo_episodes, bc_lr."""
     episodes: int | None = None
     """N_total, training episodes per agent (preset default if omitted)."""
     arena: str | None = None
@@ -99,7 +110,9 @@ def build_run(args: TrainArgs):
         for k, v in (("batch_size", args.batch_size), ("buffer_size", args.buffer_size))
         if v is not None
     }
-    cfg, base_hp = preset(args.preset, args.agent, **agent_overrides)
+    kind = BASELINE_AGENTS.get(args.agent.strip().lower().replace(" ", ""))
+    settings = parse_baseline_settings(args.baseline, kind, args.agent)
+    cfg, base_hp = preset(args.preset, args.agent, baseline=settings, **agent_overrides)
     train_overrides = {
         name: getattr(args, name)
         for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",
@@ -119,6 +132,10 @@ def build_run(args: TrainArgs):
             f"{', '.join(both)} given to both --hp and --grid (the grid would override --hp); "
             "give each name once"
         )
+    if kind is None:  # --hp/--grid demo_episodes for DDPG: an unknown baseline setting
+        check_baseline_hparams(None, cfg.episodes, base_hp, {**grid, **overrides}, args.agent)
+    elif "demo_episodes" not in grid:  # fail before compiling (run_training checks each agent)
+        check_baseline_hparams(kind, cfg.episodes, base_hp)
     seeds = list(range(args.seed, args.seed + args.seeds))
     arenas = args.eval_arenas or (
         ("physical",) if cfg.arena == "physical" else ("training", "validation")

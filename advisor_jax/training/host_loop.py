@@ -45,10 +45,11 @@ from rich.console import Console
 
 import envs
 from advisor_jax import __version__
+from advisor_jax.agent.baselines import check_baseline_hparams
 from advisor_jax.agent.config import HParams, TrainConfig
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training import checkpoint, plots, reporting, run_directory, runlock
+from advisor_jax.training import checkpoint, phases, plots, reporting, run_directory, runlock
 from advisor_jax.training.devices import (
     Placement,
     freeze_padding,
@@ -109,6 +110,8 @@ def run_training(
                 f"{', '.join(envs.ARENAS)}"
             )
     hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
+    baseline = cfg.agent.baseline
+    check_baseline_hparams(baseline and baseline.kind, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
     if resume and not (out_dir / "run.json").exists():
         raise ValueError(f"nothing to resume: {out_dir / 'run.json'} does not exist")
@@ -164,6 +167,8 @@ def _train_locked(
         "agents": agents,
         "status": "running",
     }
+    if trainer.schedule is not None:  # a baseline: its phases, RL last (docs/baselines.md)
+        summary["phases"] = phases.describe(trainer.schedule)
     step = 0
     log_path = out_dir / "train_log.jsonl"
     if resume:
@@ -236,7 +241,9 @@ def _train_locked(
         save_checkpoint(state)
         summary.update(status="interrupted", env_steps_per_agent=step)
         if writer:
-            _write_episode_metrics(out_dir, real(state), hp, n_total, log_path, agents)
+            _write_episode_metrics(
+                out_dir, real(state), hp, n_total, log_path, agents, trainer.schedule
+            )
             atomic_write_json(run_file, summary)
         what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
         console.print(
@@ -251,7 +258,9 @@ def _train_locked(
         return summary
 
     checkpoint.save_tree(out_dir / "params", _final_params(state))
-    metrics, series = _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents)
+    metrics, series = _write_episode_metrics(
+        out_dir, state, hp, n_total, log_path, agents, trainer.schedule
+    )
     evaluation = {}
     if eval_episodes:
         evaluators = {
@@ -307,13 +316,18 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
     return trainer, init_fn, chunk_fn
 
 
-def _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents):
+def _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents, schedule=None):
     """metrics.npz and episodes.csv of the episodes played so far (an interrupted run's too:
-    its analysis need not wait for --resume); returns (metrics, per-chunk log series)."""
+    its analysis need not wait for --resume); returns (metrics, per-chunk log series). A
+    baseline's episodes carry their phase (``phase``: index into ``phase_names``)."""
     metrics = reporting.episode_metrics(state, hp, n_total)
+    phase_names = None
+    if schedule is not None:
+        metrics["phase"] = phases.episode_phases(schedule, hp, n_total)
+        phase_names = schedule.names
     series = reporting.read_training_log(log_path, len(agents))
     metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
-    reporting.write_metrics(out_dir, metrics, agents)
+    reporting.write_metrics(out_dir, metrics, agents, phase_names)
     return metrics, series
 
 

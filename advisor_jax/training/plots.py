@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import math
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -95,7 +96,8 @@ def plot_diagnostics(path: Path, series: Mapping[str, np.ndarray], agents, grid,
             values = series[name][members]
             if not np.isfinite(values).any():
                 continue
-            with np.errstate(all="ignore"):
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # chunks with no value yet
                 mean = np.nanmean(values, axis=0)
             (line,) = ax.plot(steps, mean, label=f"{label} (n={len(members)})")
             for row in values if len(members) > 1 else ():

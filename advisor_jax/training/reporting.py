@@ -136,17 +136,26 @@ def episode_metrics(state, hp, n_total: int) -> dict[str, np.ndarray]:
     }
 
 
-def write_metrics(out_dir: Path, metrics: Mapping[str, np.ndarray], agents: Sequence) -> None:
-    """metrics.npz and episodes.csv (one row per agent and played episode)."""
+def write_metrics(
+    out_dir: Path,
+    metrics: Mapping[str, np.ndarray],
+    agents: Sequence,
+    phase_names: Sequence[str] | None = None,
+) -> None:
+    """metrics.npz and episodes.csv (one row per agent and played episode). With
+    ``phase_names`` (a baseline) the CSV's last column names each episode's phase."""
     atomic_write_npz(out_dir / "metrics.npz", **metrics)
     buf = io.StringIO()
     writer = csv.writer(buf)
-    writer.writerow(["agent", "seed", "episode", "outcome", *METRIC_NAMES[1:]])
+    extra = ["phase"] if phase_names else []
+    writer.writerow(["agent", "seed", "episode", "outcome", *METRIC_NAMES[1:], *extra])
     names = envs.OUTCOME_NAMES
     for a, agent in enumerate(agents):
         for e in np.flatnonzero(metrics["outcome"][a] > 0):
             row = [a, agent["seed"], e + 1, names[int(metrics["outcome"][a, e])]]
             row += [_fmt(metrics[m][a, e]) for m in METRIC_NAMES[1:]]
+            if phase_names:
+                row.append(phase_names[int(metrics["phase"][a, e])])
             writer.writerow(row)
     atomic_write_bytes(out_dir / "episodes.csv", buf.getvalue().encode())
 

@@ -19,6 +19,10 @@ learns nothing: its learning rates and τ are multiplied by 0, so its parameters
 as they were, and its episode log ignores further episodes. This makes one vmapped run of
 many agents equal to the same agents run one by one.
 
+Baselines (LfD, docs/baselines.md). A baseline agent's prior-knowledge phases (demonstration
+episodes, imitation, critic warm-up) run in the same scan, chosen per step from its own
+counters by ``training/phases.py``; a paper agent's program is unchanged (``prior`` None).
+
 Static schedule. The warm-up test and the TD3 delay ``update % d == 0`` depend only on the
 global step index, which the caller passes *unbatched* (``first_step``) and the scan derives
 from ``arange``: under ``vmap`` they stay scalars, so ``lax.cond`` really skips the actor
@@ -48,6 +52,7 @@ from advisor_jax.agent.replay_buffer import (
 )
 from advisor_jax.agent.selector import select_action
 from advisor_jax.contract import spec
+from advisor_jax.training import phases
 
 
 @struct.dataclass
@@ -77,6 +82,7 @@ class TrainState:
     diverged: jax.Array  # () bool, a loss went non-finite: the agent is frozen
     log: EpisodeLog
     key: jax.Array
+    prior: Any = None  # phases.PhaseState of a baseline agent; None for the paper's agents
 
 
 class Trainer(NamedTuple):
@@ -85,6 +91,7 @@ class Trainer(NamedTuple):
     init: Any  # (key) -> TrainState
     chunk: Any  # (state, hp, first_step) -> (state, metrics [chunk_steps])
     max_steps: int  # environment steps per env after which every agent is surely done
+    schedule: phases.Schedule | None = None  # a baseline's phases before RL (None: none)
 
 
 def make_train(cfg: TrainConfig) -> Trainer:
@@ -98,11 +105,13 @@ def make_train(cfg: TrainConfig) -> Trainer:
     action_low = jnp.asarray(spec.ACTION_LOW, jnp.float32)
     action_high = jnp.asarray(spec.ACTION_HIGH, jnp.float32)
     collision = envs.COLLISION
+    schedule = phases.make_schedule(cfg, learner, actor)  # None for the paper's agents
 
     def init(key: jax.Array) -> TrainState:
         key, k_learner, k_env = jax.random.split(key, 3)
+        learner_state = learner.init(k_learner)
         return TrainState(
-            learner=learner.init(k_learner),
+            learner=learner_state,
             replay=replay_init(agent.buffer_size),
             env=jax.vmap(env.reset)(jax.random.split(k_env, n_envs)),
             noise=ou_init((n_envs, spec.ACTION_SIZE)),
@@ -118,11 +127,18 @@ def make_train(cfg: TrainConfig) -> Trainer:
                 actor_steps=jnp.zeros(n_total, jnp.int32),
             ),
             key=key,
+            prior=None if schedule is None else phases.init_state(schedule, learner_state),
         )
 
-    def collect(state: TrainState, hp: HParams, active: jax.Array) -> TrainState:
-        """One environment step of every env of the agent (Alg. 1 / A2, steps 8-16)."""
-        key, k_select, k_noise = jax.random.split(state.key, 3)
+    def collect(state: TrainState, hp: HParams, active: jax.Array, phase=None) -> TrainState:
+        """One environment step of every env of the agent (Alg. 1 / A2, steps 8-16).
+
+        A baseline agent (``phase`` given) executes its phase's controller instead, and holds
+        the environment in an offline phase (nothing stored, logged or counted)."""
+        if schedule is None:
+            key, k_select, k_noise = jax.random.split(state.key, 3)
+        else:
+            key, k_select, k_noise, k_phase = jax.random.split(state.key, 4)
         obs = state.env.obs  # [E, 20]
         actor_action = actor.apply(state.learner.actor, obs)  # [E, 2]
         adv_action = jax.vmap(advisor_action, in_axes=(0, None))(obs, advisor)
@@ -141,6 +157,12 @@ def make_train(cfg: TrainConfig) -> Trainer:
         else:
             chosen, used_advisor = actor_action, jnp.zeros(n_envs, bool)
         noise_state, noise = ou_step(state.noise, k_noise, hp.ou_theta, hp.ou_sigma)
+        if schedule is not None:
+            control, acting = phases.control(
+                schedule, phase, state, obs, actor_action, adv_action, k_phase, hp
+            )
+            chosen, used_advisor = control.action, ~control.actor_fired
+            noise = noise * control.noise
         action = jnp.clip(chosen + noise, action_low, action_high)
         env_state = jax.vmap(env.step)(state.env, action)
 
@@ -153,10 +175,20 @@ def make_train(cfg: TrainConfig) -> Trainer:
             terminal=env_state.terminal.astype(jnp.float32),
         )
         done = env_state.done  # [E]
-        actor_steps = state.actor_steps + (~used_advisor).astype(jnp.int32)
-        log = _write_episodes(state.log, state.episodes, env_state, actor_steps, collision)
+        fired = ~used_advisor
+        if schedule is None:
+            replay = replay_add(state.replay, transition)
+        else:  # an offline phase: the env, its noise and its episode stay as they were
+            held = lambda new, old: jnp.where(acting, new, old)  # noqa: E731
+            env_state = jax.tree.map(held, env_state, state.env)
+            noise_state = jax.tree.map(held, noise_state, state.noise)
+            done, fired = done & acting, fired & acting
+            replay = replay_add(state.replay, transition, jnp.broadcast_to(acting, (n_envs,)))
+            active = active & acting
+        actor_steps = state.actor_steps + fired.astype(jnp.int32)
+        log = _write_episodes(state.log, state.episodes, env_state, actor_steps, collision, done)
         return state.replace(
-            replay=replay_add(state.replay, transition),
+            replay=replay,
             env=env_state,
             noise=ou_reset(noise_state, done),
             actor_steps=jnp.where(done, 0, actor_steps),
@@ -206,9 +238,17 @@ def make_train(cfg: TrainConfig) -> Trainer:
                 lr_actor=hp.lr_actor * active,
                 lr_critic=hp.lr_critic * active,
                 tau=hp.tau * active,
+                bc_lr=hp.bc_lr * active,
             )
-            state = collect(state, hp, active)
-            state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
+            if schedule is None:
+                state = collect(state, hp, active)
+                state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
+            else:  # the phase at the start of the step decides both halves
+                phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
+                state = collect(state, hp, active, phase)
+                state, metrics, nonfinite = phases.learn(
+                    schedule, phase, state, frozen_hp, first_step + i, learn
+                )
             state = state.replace(diverged=state.diverged | (nonfinite & active))
             metrics = {**metrics, "train/active": active, "train/episodes": state.episodes}
             return state, metrics
@@ -217,12 +257,16 @@ def make_train(cfg: TrainConfig) -> Trainer:
         return jax.lax.scan(body, state, steps)
 
     max_steps = math.ceil(n_total / n_envs) * env.max_episode_steps
-    return Trainer(init=init, chunk=chunk, max_steps=max_steps)
+    if schedule is not None:  # offline phases take scan steps without env steps
+        max_steps += schedule.offline_steps
+    return Trainer(init=init, chunk=chunk, max_steps=max_steps, schedule=schedule)
 
 
-def _write_episodes(log: EpisodeLog, episodes, env_state, actor_steps, collision) -> EpisodeLog:
+def _write_episodes(
+    log: EpisodeLog, episodes, env_state, actor_steps, collision, done=None
+) -> EpisodeLog:
     """Stores the metrics of every env whose episode just ended at its episode index."""
-    done = env_state.done  # [E]
+    done = env_state.done if done is None else done  # [E]
     n_total = log.outcome.shape[0]
     slot = episodes + jnp.cumsum(done.astype(jnp.int32)) - 1
     slot = jnp.where(done, slot, n_total)  # out of range: dropped

@@ -1,0 +1,216 @@
+"""The phase hook: a baseline's prior-knowledge phases inside the one training scan.
+
+A baseline agent (docs/baselines.md) plays some phases before ordinary RL: episodes driven
+by another controller (LfD: the advisor's demonstrations) and offline updates that touch no
+environment (LfD: imitation, critic warm-up). Its ``Schedule`` is a static tuple of
+``Phase``s followed by the implicit RL phase. Every phase runs in ``make_train``'s
+``chunk`` scan, so there is one compiled program and checkpoint / resume work unchanged; the
+agent's phase at each scan step is a pure function of its own counters::
+
+    phase = first i whose target is not reached, else RL (= len(phases))
+        collect phase i:  done once N  >= Σ_{collect j ≤ i} hp.<phase j's episodes field>
+        offline phase i:  done once k  >= Σ_{offline j ≤ i} phase j's steps
+    (N = completed episodes, the episode budget's counter; k = offline steps done)
+
+    collect phase:  its controller acts (OU noise added if it says so), env step, replay,
+                    episode counted against N_total; no learning
+    offline phase:  the env is held (nothing stored, no step counted), one ``update``, k += 1
+    RL:             today's collect (the actor) + learn, unchanged
+
+Counts of episodes are ``HParams`` (sweepable in one compile: they are only compared with
+N); offline step counts are static. Under ``vmap`` the phase is batched, so ``lax.switch``
+computes every phase's body at every step and selects: an agent's results do not depend
+on its neighbours (vmapped = alone), but a step costs the sum of the bodies. For LfD that
+is one imitation step (an actor forward/backward) and one critic step beside the RL update.
+A heavy body (MCP+MF's MPC, K·H model calls) would be paid on every step of every agent; it
+should instead be gated by an unbatched flag from the host (see docs/baselines.md,
+"Fitting the code base").
+
+To add a baseline: write its ``Phase``s (a controller for each collect phase, an update for
+each offline phase), the extra per-agent state its phases need (``Schedule.init``), and
+register its factory in ``make_schedule``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from advisor_jax.agent.config import HParams, TrainConfig
+from advisor_jax.agent.learner import nan_like
+
+Metrics = dict[str, jax.Array]
+
+
+class Control(NamedTuple):
+    """What a collect phase's controller executes this step (before noise and clipping)."""
+
+    action: jax.Array  # [E, 2]
+    actor_fired: jax.Array  # [E] bool: the actor chose the action (firing-rate log)
+    noise: jax.Array | float  # 1.0: add the OU noise (advisor, actor); 0.0: none
+
+
+@dataclasses.dataclass(frozen=True)
+class Phase:
+    """One phase before RL: a collect phase (``episodes`` and ``act``) or an offline phase
+    (``steps`` and ``update``)."""
+
+    name: str
+    episodes: str | None = None
+    """Collect phase: the ``HParams`` field holding its episode count."""
+    act: Callable[..., Control] | None = None
+    """Collect phase: (state, obs [E, 20], actor_action, advisor_action, key, hp) -> Control."""
+    steps: int = 0
+    """Offline phase: scan steps it takes (static)."""
+    update: Callable[..., tuple[Any, Metrics, jax.Array]] | None = None
+    """Offline phase: (state, hp) -> (state, metrics, nonfinite); one step, pure."""
+
+    def __post_init__(self):
+        collect = self.episodes is not None and self.act is not None
+        offline = self.update is not None and self.steps > 0
+        if collect == offline:
+            raise ValueError(f"phase {self.name!r} must be a collect or an offline phase")
+
+
+class Schedule(NamedTuple):
+    """A baseline's phases before RL and the extra state they carry."""
+
+    phases: tuple[Phase, ...]
+    init: Callable[[Any], Any]  # (LearnerState) -> the phases' own per-agent state
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Phase names, RL last: ``phase`` indexes this tuple."""
+        return (*(p.name for p in self.phases), "rl")
+
+    @property
+    def offline_steps(self) -> int:
+        return sum(p.steps for p in self.phases)
+
+
+@struct.dataclass
+class PhaseState:
+    """Per-agent state of a baseline's phases (``TrainState.prior``)."""
+
+    offline_steps: jax.Array  # () int32, k: offline steps done
+    data: Any  # the baseline's own (LfD: the imitation's Adam state)
+
+
+def make_schedule(cfg: TrainConfig, learner, actor) -> Schedule | None:
+    """The schedule of ``cfg``'s baseline, None for the paper's agents."""
+    baseline = cfg.agent.baseline
+    if baseline is None:
+        return None
+    if baseline.kind == "lfd":
+        from advisor_jax.training.lfd import lfd_schedule
+
+        return lfd_schedule(cfg, learner, actor)
+    raise ValueError(f"no phases for baseline kind {baseline.kind!r}")
+
+
+def init_state(schedule: Schedule, learner_state) -> PhaseState:
+    return PhaseState(offline_steps=jnp.int32(0), data=schedule.init(learner_state))
+
+
+def phase_index(schedule: Schedule, episodes: jax.Array, offline: jax.Array, hp: HParams):
+    """The agent's phase: index into ``schedule.names`` (int32; RL = len(phases))."""
+    done, n_target, k_target = [], 0.0, 0
+    for phase in schedule.phases:
+        if phase.act is not None:
+            n_target = n_target + getattr(hp, phase.episodes)
+            done.append(episodes >= n_target)
+        else:
+            k_target += phase.steps
+            done.append(offline >= k_target)
+    done = jnp.stack(done)
+    return jnp.where(jnp.all(done), len(done), jnp.argmin(done)).astype(jnp.int32)
+
+
+def control(schedule, phase, state, obs, actor_action, advisor_action, key, hp):
+    """(Control, acting) of this step: the phase's controller; the actor in RL; in an
+    offline phase ``acting`` is False and the env must be held."""
+    n_envs = obs.shape[0]
+    actor = Control(actor_action, jnp.ones(n_envs, bool), jnp.float32(1.0))
+
+    def branch(phase_def):
+        if phase_def is None or phase_def.act is None:  # RL, or offline (ignored)
+            return lambda *_: actor
+        return lambda *a: _as_control(phase_def.act(*a), n_envs)
+
+    branches = [branch(p) for p in schedule.phases] + [branch(None)]
+    chosen = jax.lax.switch(phase, branches, state, obs, actor_action, advisor_action, key, hp)
+    offline = jnp.asarray([p.act is None for p in schedule.phases] + [False])
+    return chosen, ~offline[phase]
+
+
+def _as_control(c: Control, n_envs: int) -> Control:
+    return Control(
+        action=c.action,
+        actor_fired=jnp.broadcast_to(jnp.asarray(c.actor_fired, bool), (n_envs,)),
+        noise=jnp.asarray(c.noise, jnp.float32),
+    )
+
+
+def learn(schedule, phase, state, hp, step_index, rl_learn):
+    """This step's learning: nothing in a collect phase, the phase's update (k += 1) in an
+    offline phase, ``rl_learn(state, hp, step_index)`` in RL. Returns (state, metrics,
+    nonfinite) with one metrics dict for all phases (NaN where a phase computes nothing)
+    and ``train/phase``."""
+
+    def idle(state, hp, step_index):
+        return state, {}, jnp.zeros((), bool)
+
+    def offline(update):
+        def run(state, hp, step_index):
+            state, metrics, bad = update(state, hp)
+            prior = state.prior.replace(offline_steps=state.prior.offline_steps + 1)
+            return state.replace(prior=prior), metrics, bad
+
+        return run
+
+    branches = [idle if p.update is None else offline(p.update) for p in schedule.phases]
+    branches.append(rl_learn)
+    shapes = {}
+    for b in branches:
+        shapes.update(jax.eval_shape(b, state, hp, step_index)[1])
+
+    def complete(b):
+        def run(*args):
+            state, metrics, bad = b(*args)
+            filled = {name: metrics[name] if name in metrics else nan_like(shape)
+                      for name, shape in shapes.items()}  # fmt: skip
+            return state, filled, bad
+
+        return run
+
+    state, metrics, bad = jax.lax.switch(
+        phase, [complete(b) for b in branches], state, hp, step_index
+    )
+    return state, {**metrics, "train/phase": phase}, bad
+
+
+def describe(schedule: Schedule) -> list[dict]:
+    """The schedule for run.json: each phase's name and its episode-count field or steps."""
+    out = [{"name": p.name, "episodes": p.episodes} if p.act else {"name": p.name,
+            "steps": p.steps} for p in schedule.phases]  # fmt: skip
+    return out + [{"name": "rl", "episodes": "the rest of episodes (N_total)"}]
+
+
+def episode_phases(schedule: Schedule, hp: HParams, n_total: int) -> np.ndarray:
+    """[agents, N_total] int8: the phase (index into ``schedule.names``) that played each
+    episode, from the stacked hyperparameters (host side: metrics.npz, episodes.csv)."""
+    collect = [(i, p) for i, p in enumerate(schedule.phases) if p.act is not None]
+    counts = [np.atleast_1d(np.asarray(getattr(hp, p.episodes), np.float64)) for _, p in collect]
+    n_agents = counts[0].size if counts else np.atleast_1d(np.asarray(hp.gamma)).size
+    episode = np.arange(n_total)[None, :]
+    out = np.full((n_agents, n_total), len(schedule.phases), np.int8)  # RL
+    ends = np.cumsum(counts, axis=0) if counts else []
+    for (i, _), end in reversed(list(zip(collect, ends, strict=True))):  # first phase wins
+        out = np.where(episode < end[:, None], np.int8(i), out)
+    return out
