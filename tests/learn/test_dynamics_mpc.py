@@ -10,19 +10,37 @@ env's, and inputs that should be refused.
 
 from __future__ import annotations
 
+import contextlib
+import io
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
+from advisor_jax.agent.advisor import advisor_action, arena_advisor
 from advisor_jax.agent.dynamics_model import (
     make_dynamics_model,
     normalizer_from_data,
     observation_delta,
 )
-from advisor_jax.agent.networks import count_params
+from advisor_jax.agent.mpc import (
+    candidate_returns,
+    make_mpc_policy,
+    plan,
+    sample_candidates,
+)
+from advisor_jax.agent.mpc_imitation import imitation_step
+from advisor_jax.agent.networks import count_params, init_actor, make_actor
 from advisor_jax.agent.replay_buffer import Transition
+from envs.reward import eq8_from_obs
+from envs.state import EnvConfig
 
+with contextlib.redirect_stdout(io.StringIO()):  # MJX's "Failed to import warp" notice
+    import envs
+
+CFG = EnvConfig()
 SMALL = (64, 64)
 PAD = 904  # rows past the valid count, filled with garbage: must never be read
 
@@ -191,7 +209,175 @@ def test_fit_vmaps_over_agents(small_model):
         )
 
 
+# -- Eq. 8 from observations ----------------------------------------------------------------
+
+
+def _obs(p=1.0, d=2.0, delta=0.0):
+    o = np.zeros(20, np.float32)
+    o[:16], o[16], o[17] = p, delta, d
+    return jnp.asarray(o)
+
+
+def test_eq8_hand_cases():
+    reward = lambda prev, obs: float(eq8_from_obs(prev, obs, CFG)[0])  # noqa: E731
+    assert reward(_obs(0.8, 1.0), _obs(0.6, 0.9)) == pytest.approx(5 * 0.1 + 5 * -0.2, abs=1e-5)
+    assert reward(_obs(0.8, 0.3), _obs(0.8, 0.15)) == 10.0  # d ≤ T_g
+    assert reward(_obs(0.8, 1.0), _obs(0.1, 0.9)) == -10.0  # min P ≤ T_c
+    assert reward(_obs(0.8, 0.3), _obs(0.05, 0.1)) == 10.0  # both: the goal wins
+    # Predictions out of the contract's ranges are clipped: P ∈ [0, 1], d ≥ 0.
+    assert reward(_obs(0.9, 1.0), _obs(1.7, 1.0)) == pytest.approx(5 * 0.1, abs=1e-5)
+    _, goal, collision = eq8_from_obs(_obs(0.8, 0.5), _obs(-0.2, -0.3), CFG)
+    assert bool(goal) and not bool(collision)
+
+
+def test_eq8_matches_the_env_on_random_steps():
+    """On 640 random-action steps of the training arena Eq. 8 from (s, s') equals the env's
+    reward exactly, except on steps that only the footprint test ended (a collision with
+    min P > T_c): there the env gives −c2 and the observation the shaping term."""
+    env = envs.make_env("training")
+    n_envs, n_steps = 16, 40
+
+    def run(key):
+        k_reset, k_act = jax.random.split(key)
+        states = jax.vmap(env.reset)(jax.random.split(k_reset, n_envs))
+
+        def body(states, k):
+            actions = sample_candidates(k, n_envs, 1)[:, 0]
+            new = jax.vmap(env.step)(states, actions)
+            ours = eq8_from_obs(states.obs, new.terminal_obs, env.config)
+            return new, (new.reward, new.outcome, new.terminal_obs, ours)
+
+        return jax.lax.scan(body, states, jax.random.split(k_act, n_steps))[1]
+
+    env_reward, outcome, next_obs, (reward, goal, collision) = jax.jit(run)(jax.random.PRNGKey(11))
+    footprint_only = (outcome == envs.COLLISION) & (next_obs[..., :16].min(-1) > 0.1)
+    same = ~footprint_only
+    assert int(same.sum()) >= 600
+    np.testing.assert_array_equal(np.asarray(reward)[same], np.asarray(env_reward)[same])
+    np.testing.assert_array_equal(goal[same], (outcome == envs.GOAL)[same])
+    np.testing.assert_array_equal(collision[same], (outcome == envs.COLLISION)[same])
+    assert int((outcome == envs.COLLISION).sum()) >= 1  # the collision branch was exercised
+
+
+# -- random-shooting MPC --------------------------------------------------------------------
+
+
+def _hand_model(obs, action):
+    """d shrinks by 0.2 V, every P by 0.75 ω (turning left closes in on a wall)."""
+    d = obs[..., 17] - 0.2 * action[..., 0]
+    p = obs[..., :16] - 0.75 * action[..., 1:2]
+    return obs.at[..., 17].set(d).at[..., :16].set(p)
+
+
+HAND = np.array(
+    [
+        [[0.5, -1.0], [0.5, -1.0], [0.5, -1.0]],  # best shaping: 1.5 + 0.5 + 0.5 = 2.5
+        [[1.0, 1.0], [1.0, 0.0], [1.0, 0.0]],  # collides at step 1 (P 0.05): −10, then done
+        [[1.0, 0.0], [1.0, 0.0], [0.0, 1.0]],  # goal at step 2 (d 0.1), "crash" at 3: 1 + 10
+        [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0]],  # stands still: 0
+    ],
+    np.float32,
+)
+
+
+def test_plan_picks_the_best_hand_made_candidate():
+    start = _obs(p=0.8, d=0.5)
+    returns = candidate_returns(_hand_model, start, jnp.asarray(HAND), CFG)
+    np.testing.assert_allclose(returns, [2.5, -10.0, 11.0, 0.0], rtol=1e-5, atol=1e-5)
+    action, _ = jax.jit(plan, static_argnums=(0, 3))(_hand_model, start, jnp.asarray(HAND), CFG)
+    np.testing.assert_array_equal(action, HAND[2, 0])
+    # Without the goal candidate, the best shaping wins; a NaN return ranks last.
+    action, _ = plan(_hand_model, start, jnp.asarray(HAND[[1, 3, 0]]), CFG)
+    np.testing.assert_array_equal(action, HAND[0, 0])
+    nan_model = lambda s, a: jnp.where(a[0] > 0.9, jnp.nan, 1.0) * _hand_model(s, a)  # noqa: E731
+    action, returns = plan(nan_model, start, jnp.asarray(HAND), CFG)
+    assert np.isnan(returns[1]) and np.isnan(returns[2])
+    np.testing.assert_array_equal(action, HAND[0, 0])
+
+
+def test_sampled_candidates_fill_the_box():
+    c = np.asarray(sample_candidates(jax.random.PRNGKey(12), 500, 20))
+    assert c.shape == (500, 20, 2) and c.dtype == np.float32
+    assert c[..., 0].min() >= 0.0 and c[..., 0].max() <= 1.0
+    assert c[..., 1].min() >= -1.0 and c[..., 1].max() <= 1.0
+    assert c[..., 0].min() < 0.01 and c[..., 0].max() > 0.99 and c[..., 1].min() < -0.98
+
+
+def test_mpc_policy_vmaps_over_agents():
+    """The neural-model policy, vmapped over two agents' models, equals each run alone."""
+    model = make_dynamics_model((32,))
+    policy = make_mpc_policy(model, 16, 3, CFG)
+    keys = jax.random.split(jax.random.PRNGKey(13), 2)
+    states = jax.vmap(model.init)(keys)
+    obs = jnp.stack([_obs(0.7, 1.0, 0.3), _obs(0.5, 2.0, -1.0)])
+    both = jax.jit(jax.vmap(policy))(states.params, states.norm, obs, keys)
+    for i in range(2):
+        one = jax.tree.map(lambda x, i=i: x[i], states)
+        alone = policy(one.params, one.norm, obs[i], keys[i])
+        np.testing.assert_allclose(both[i], alone, rtol=1e-6, atol=1e-6)
+        assert 0.0 <= float(alone[0]) <= 1.0 and -1.0 <= float(alone[1]) <= 1.0
+
+
+# -- imitation ------------------------------------------------------------------------------
+
+
+def test_imitation_reduces_distance_on_held_out_states():
+    """Advisor labels on 2,000 / 500 synthetic states, actor (64, 64), 300 steps: held-out
+    mean ‖π − a‖² falls below a quarter of its initial value."""
+    rng = np.random.default_rng(14)
+    n = 2500
+    obs = np.concatenate(
+        [
+            rng.uniform(0.0, 1.0, (n, 16)),
+            rng.uniform(-np.pi, np.pi, (n, 1)),
+            rng.uniform(0.0, 5.0, (n, 1)),
+            rng.uniform(-1.0, 1.0, (n, 2)),
+        ],
+        axis=1,
+    ).astype(np.float32)
+    labels = np.asarray(
+        jax.vmap(advisor_action, in_axes=(0, None))(obs, arena_advisor(envs.make_env("training")))
+    )
+    actor = make_actor(SMALL)
+    params = init_actor(actor, jax.random.PRNGKey(15))
+    opt_state = optax.adam(1e-3).init(params)
+    step = jax.jit(imitation_step, static_argnums=0)
+    held_out = lambda p: float(
+        jnp.mean(jnp.sum((actor.apply(p, obs[2000:]) - labels[2000:]) ** 2, -1))
+    )  # noqa: E731
+    before = held_out(params)
+    for _ in range(300):
+        idx = rng.integers(0, 2000, 128)
+        params, opt_state, loss = step(actor.apply, params, opt_state, obs[idx], labels[idx], 1e-3)
+        assert np.isfinite(loss)
+    assert held_out(params) < 0.25 * before
+
+
 # -- bad input ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "k, h, message",
+    [
+        (0, 20, "mpc_candidates (K) must be a positive integer, got 0"),
+        (1000, 0, "mpc_horizon (H) must be a positive integer, got 0"),
+        (-3, 20, "got -3"),
+        (True, 20, "got True"),
+        (1000, 2.5, "got 2.5"),
+    ],
+)
+def test_bad_mpc_sizes(k, h, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        sample_candidates(jax.random.PRNGKey(0), k, h)
+    with pytest.raises(ValueError, match="must be a positive integer"):
+        make_mpc_policy(make_dynamics_model((8,)), k, h, CFG)
+
+
+def test_bad_candidates():
+    with pytest.raises(ValueError, match=r"got 0"):
+        plan(_hand_model, _obs(), jnp.zeros((0, 3, 2)), CFG)
+    with pytest.raises(ValueError, match=r"shape \[K, H, 2\]"):
+        plan(_hand_model, _obs(), jnp.zeros((4, 3)), CFG)
 
 
 def test_bad_model_settings():
