@@ -34,6 +34,7 @@ BASELINE_HPARAMS: dict[str, tuple[str, ...]] = {"lfd": ("demo_episodes", "bc_lr"
 # Per-preset overrides of BaselineConfig (docs/baselines.md, "Fitting the code base").
 BASELINE_PRESETS: dict[str, dict] = {
     "paper": {},
+    "stable": {},
     "physical": {},
     "quick": dict(bc_steps=200, bc_batch=128, critic_warmup=100),
 }

@@ -29,9 +29,11 @@ class TrainArgs:
       advisor-jax train --preset paper --agent LfD --seeds 6 --grid demo_episodes=10,50,250
     """
 
-    preset: Literal["quick", "paper", "physical"] = "quick"
+    preset: Literal["quick", "paper", "stable", "physical"] = "quick"
     """Starting point: quick (small networks, minutes on a CPU), paper (Tables A2/A4,
-    simulation), physical (Tables A2/A4, physical column, physical arena)."""
+    simulation), stable (paper with Eq. 2's Â clipped to the action box and a scale-free
+    step β = 1: no collapsed seed in 16; docs/architecture.md R33/R34), physical (Tables
+    A2/A4, physical column, physical arena)."""
     agent: str = "ATD3+AfDP"
     """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1), or
     the baseline LfD (advisor demonstrations, imitation, then DDPG; docs/baselines.md)."""

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.agent.config import HParams, validate_hparams
+from advisor_jax.agent.config import HParams, preset, validate_hparams
 from advisor_jax.agent.diagnostics import actor_diagnostics
 from advisor_jax.agent.update_rules import addpg_actor_targets, eq2_step
 from tests.learn.test_learner_rules import ACTIONS, ADVISOR, OBS, quadratic_q
@@ -96,6 +96,17 @@ def test_switches_take_zero_or_one(name):
     validate_hparams(HParams(**{name: 1.0}))
     with pytest.raises(ValueError, match=f"{name}=0.5 is a switch: 0 or 1"):
         validate_hparams(HParams(**{name: 0.5}))
+
+
+def test_only_the_stable_preset_departs_from_the_literal_eq2():
+    """paper/physical/quick keep Eq. (2) as printed; stable differs from paper only in the
+    three settings the 16-seed evidence supports (results/afp_collapse/)."""
+    for name in ("paper", "physical", "quick"):
+        hp = preset(name)[1]
+        assert (hp.beta_normalize, hp.clip_actor_target) == (0.0, 0.0)
+    (paper_cfg, paper), (stable_cfg, stable) = preset("paper"), preset("stable")
+    assert stable_cfg == paper_cfg
+    assert stable == paper.replace(beta=1.0, beta_normalize=1.0, clip_actor_target=1.0)
 
 
 @pytest.mark.parametrize("name", ["ddpg", "addpg", "atd3"])
