@@ -23,9 +23,9 @@ running piece in time (a checkpoint, status "interrupted"; a piece whose trainin
 is let finish its evaluation) and exits with status 3. ``summarize`` pools the agents of
 every finished run directory under ``--runs`` by (agent type, episodes, β, beta_normalize,
 clip_actor_target), whichever pieces they came from; a seed found twice for one point counts
-once. A piece is evaluated on episodes keyed by its first seed (``run_training``): pieces
-that start at different seeds are not paired episode by episode; the AfP effect is a
-difference of means with a Welch interval, which needs no pairing.
+once. Every piece is evaluated on the same episodes, keyed by the study's ``--seed``
+(``run_training``'s ``eval_seed``): the evaluation set adds no between-piece noise. The AfP
+effect is a difference of means with a Welch interval.
 
 On the GPU (the ``device`` tool), one piece per command: what comes back is at most eight
 files, here the piece's five small files and the three summary files. Once, here, in the
@@ -408,6 +408,7 @@ def train(args) -> None:
                     {k: list(vs) for k, vs in piece.grid},
                     piece.seeds,
                     eval_episodes=args.eval_episodes,
+                    eval_seed=args.seed,  # one episode set for every piece: paired agents
                     checkpoint_every=args.checkpoint_every,
                     progress=args.progress,
                     meta=meta,

@@ -63,6 +63,7 @@ def train(args) -> None:
             {},
             list(range(args.seed, args.seed + args.seeds)),
             eval_episodes=args.eval_episodes,
+            eval_seed=args.seed,  # every agent type on the same episodes
             checkpoint_every=0,
             progress=False,
             meta={"preset": args.preset, "table1": {"hp": overrides, "command": command}},

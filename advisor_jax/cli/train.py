@@ -72,6 +72,9 @@ class TrainArgs:
     """Evaluation episodes per agent and arena after training (0 = skip)."""
     eval_arenas: tuple[str, ...] | None = None
     """Evaluation arenas (default: training and validation; physical for the physical preset)."""
+    eval_seed: int | None = None
+    """Seed of the evaluation episodes (default: the first training seed). Give runs that
+    are to be pooled the same one: their agents are then evaluated on the same episodes."""
     checkpoint_every: int = 10
     """Write a resumable checkpoint every this many chunks (0 = only at the end)."""
     resume: bool = False
@@ -177,5 +180,6 @@ def train_command(args: TrainArgs) -> None:
         progress=not args.no_progress,
         meta={"preset": args.preset},
         devices=args.devices,
+        eval_seed=args.eval_seed,
     )
     print(f"results in {out}/ (run.json, eval.json, metrics.npz, episodes.csv, params/)")

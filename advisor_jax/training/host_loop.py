@@ -61,7 +61,13 @@ from advisor_jax.training.devices import (
     to_host,
     unpad,
 )
-from advisor_jax.training.population import SEED_MAX, agent_keys, build_population, seed_key
+from advisor_jax.training.population import (
+    SEED_MAX,
+    agent_keys,
+    build_population,
+    check_seed,
+    seed_key,
+)
 from advisor_jax.training.train import make_train
 
 
@@ -81,6 +87,7 @@ def run_training(
     meta: Mapping | None = None,
     program: tuple | None = None,
     devices: int | None = None,
+    eval_seed: int | None = None,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
@@ -91,6 +98,8 @@ def run_training(
     ValueError for a bad option before anything is written, and ``runlock.RunDirectoryBusy``
     if another process is training into ``out_dir``. An interrupt (Ctrl-C or SIGTERM) saves
     a checkpoint and re-raises KeyboardInterrupt (``runlock.Interrupted`` for SIGTERM).
+    ``eval_seed`` keys the evaluation episodes (None: the first seed); runs given the same
+    one are evaluated on the same episodes, so their agents can be pooled and paired.
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -110,6 +119,7 @@ def run_training(
                 f"{', '.join(envs.ARENAS)}"
             )
     hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
+    eval_from = check_seed(seeds[0] if eval_seed is None else eval_seed, "eval_seed")
     baseline = cfg.agent.baseline
     check_baseline_hparams(baseline and baseline.kind, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
@@ -119,13 +129,13 @@ def run_training(
     with lock, runlock.sigterm_as_interrupt():
         return _train_locked(
             cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-            checkpoint_every, resume, progress, console, meta, program, placement,
+            checkpoint_every, resume, progress, console, meta, program, placement, eval_from,
         )  # fmt: skip
 
 
 def _train_locked(
     cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-    checkpoint_every, resume, progress, console, meta, program, placement,
+    checkpoint_every, resume, progress, console, meta, program, placement, eval_from,
 ) -> dict:  # fmt: skip
     """``run_training`` once its options are checked and ``out_dir`` is held.
 
@@ -164,6 +174,7 @@ def _train_locked(
         "agent": cfg.agent.name,
         **(meta or {}),
         "grid": {k: list(map(float, v)) for k, v in grid.items()},
+        "eval_seed": eval_from,
         "agents": agents,
         "status": "running",
     }
@@ -272,7 +283,7 @@ def _train_locked(
         evaluation = evaluate_population(
             evaluators,
             state.learner.actor,
-            key=seed_key((10_000 + int(seeds[0])) % (SEED_MAX + 1)),
+            key=seed_key((10_000 + int(eval_from)) % (SEED_MAX + 1)),
             diverged=np.asarray(state.diverged),
         )
         atomic_write_json(out_dir / "eval.json", evaluation)

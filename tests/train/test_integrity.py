@@ -185,6 +185,7 @@ def test_sigterm_saves_a_checkpoint_and_resume_finishes_the_run(
     assert signal.getsignal(signal.SIGTERM) == before
     saved = json.loads((out / "run.json").read_text())
     assert saved["status"] == "interrupted" and saved["env_steps_per_agent"] == 40
+    assert saved["eval_seed"] == RUN_SEEDS[0]  # the default: the first seed
     assert checkpoint.verify_checksums(out / "checkpoints" / "40")
     partial = np.load(out / "metrics.npz")  # the episodes so far are not lost
     played = partial["outcome"] > 0
@@ -252,6 +253,7 @@ def test_interrupt_is_one_line_without_traceback(monkeypatch, capsys):
         (["--eval-episodes", "-3"], "eval_episodes must be >= 0"),
         (["--seed", str(2**64)], f"seed {2**64} is out of range: seeds are integers in"),
         (["--seed", "-1"], r"seed -1 is out of range: seeds are integers in \[0, 2\^64 - 1\]"),
+        (["--eval-seed", "-2"], r"eval_seed -2 is out of range"),
         (["--seed", str(2**64 - 1), "--seeds", "2"], "runs past the largest seed"),
         (["--hp", "beta=0.1", "beta=0.2"], r"--hp sets beta twice \('beta=0.1' and 'beta=0.2'\)"),
         (["--grid", "tau=0.1,0.2", "tau=0.3"], "--grid sets tau twice"),
