@@ -12,7 +12,12 @@ and, in the same process, the fp32 matmul ceiling.
     python experiments/profile_learner.py --small --agents 2   # CPU smoke run
 
 Writes ``results/profile_learner.md`` and ``.json`` (``--out``); with ``--keep-trace`` also
-the gzipped trace and the compiled HLO of the first population size (for a closer look).
+the gzipped trace and the compiled HLO of the first population size, and
+``profile_learner_ops.md``: every kernel of that trace joined to the HLO instruction that
+launched it (output shape, JAX op name), in ms per update. The join can be redone from
+the kept files, without a GPU:
+
+    python experiments/profile_learner.py --attribute TRACE.json.gz HLO.txt.gz --agents 128
 """
 
 from __future__ import annotations
@@ -90,6 +95,106 @@ def busy_us(events: list[dict]) -> float:
     return total
 
 
+HLO_LINE = re.compile(r"\s*(?:ROOT )?%([\w.\-]+) = (\(.*?\)|\S+) ([\w-]+)\(")
+JAX_PREFIX = re.compile(r"^jit\([^)]*\)/(vmap\(\)/)?(while/body/)?(eval_jaxpr/)?")
+
+
+def hlo_instructions(hlo: str) -> dict[str, tuple[str, str]]:
+    """HLO instruction name → (output shape, JAX op name of its metadata)."""
+    out = {}
+    for line in hlo.splitlines():
+        m = HLO_LINE.match(line)
+        if m:
+            op_name = re.search(r'op_name="([^"]*)"', line)
+            out[m.group(1)] = (m.group(2), JAX_PREFIX.sub("", op_name.group(1) if op_name else ""))
+    return out
+
+
+def role_of(shape: str, op_name: str) -> str:
+    """What a memory-bound kernel does, from its output and JAX op name."""
+    parts = re.findall(r"f32\[[^\]]*\]", shape)
+    if len(parts) == 3 and len(set(parts)) == 1:
+        return "Adam (parameter, m, v of one layer)"
+    for pattern, role in (
+        (r"relu", "ReLU"),
+        (r"transpose\(.*reduce_sum", "bias gradient (reduction over the batch)"),
+        (r"transpose\(.*/transpose$", "transpose of an activation (backward)"),
+        (r"/add$", "bias add"),
+        (r"slice", "slice"),
+        (r"dot_general", "GEMM (XLA's own)"),
+    ):
+        if re.search(pattern, op_name):
+            return role
+    return ""
+
+
+def attribute(events: list[dict], hlo: str, n_updates: int) -> list[dict]:
+    """Kernels by name with the HLO instruction that launched them, ms per update."""
+    instructions = hlo_instructions(hlo)
+    rows: dict[str, dict] = {}
+    for e in events:
+        row = rows.setdefault(e["name"], dict(kernel=e["name"], calls=0, us=0.0))
+        row["calls"] += 1
+        row["us"] += e["dur"]
+    for row in rows.values():
+        name = row["kernel"]
+        dotted = re.sub(r"_(\d+)$", r".\1", name)
+        shape, op_name = instructions.get(dotted, instructions.get(name, ("", "")))
+        row.update(
+            kind=kind_of(name),
+            shape=shape,
+            op=op_name,
+            role=role_of(shape, op_name) if shape else "",
+            ms_per_update=row["us"] / n_updates / 1e3,
+            calls_per_update=row["calls"] / n_updates,
+        )
+    return sorted(rows.values(), key=lambda r: -r["us"])
+
+
+def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> None:
+    total = sum(r["ms_per_update"] for r in rows)
+    roles: dict[str, float] = collections.defaultdict(float)
+    for r in rows:
+        roles[r["role"] or r["kind"]] += r["ms_per_update"]
+    atomic_write_json(out / "profile_learner_ops.json", dict(title=title, kernels=rows))
+    lines = [
+        "# Kernels of one update, joined to the HLO that launched them",
+        "",
+        f"{title}. {total:.2f} ms of kernels per vmapped update. cuBLAS GEMMs run inside",
+        "CUDA graphs and carry no HLO name; XLA's own fusions do.",
+        "",
+        "## By role",
+        "",
+        *common.markdown_table(
+            ("role", "ms per update", "%"),
+            [(k, v, 100 * v / total) for k, v in sorted(roles.items(), key=lambda kv: -kv[1])],
+            formats=("", ".3f", ".1f"),
+        ),
+        "",
+        "## Kernels (top 40)",
+        "",
+        *common.markdown_table(
+            ("kernel", "calls/update", "ms/update", "output shape", "role", "JAX op"),
+            [
+                (
+                    r["kernel"][:60],
+                    r["calls_per_update"],
+                    r["ms_per_update"],
+                    r["shape"][:70],
+                    r["role"],
+                    r["op"][:80].replace("|", "/"),
+                )
+                for r in rows[:40]
+            ],
+            formats=("", ".1f", ".3f", ""),
+        ),  # fmt: skip
+        "",
+        f"Command: `{command}`",
+        "",
+    ]
+    common.write_markdown(out / "profile_learner_ops.md", lines)
+
+
 def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
     learner, loop = make_update_loop(cfg, n_updates)
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
@@ -139,6 +244,7 @@ def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
         sample_event_args=sorted(events[0].get("args", {})) if events else [],
         _trace_file=str(files[-1]),
         _hlo=hlo,
+        _events=events,
     )
 
 
@@ -151,6 +257,13 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=20, help="updates in the traced call")
     parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
     parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument(
+        "--attribute",
+        nargs=2,
+        type=Path,
+        metavar=("TRACE", "HLO"),
+        help="only join a kept trace to its HLO (first --agents, --updates)",
+    )
     parser.add_argument("--keep-trace", action="store_true",
                         help="also write the first size's trace and HLO (gzipped)")  # fmt: skip
     args = parser.parse_args()
@@ -159,6 +272,18 @@ def main() -> None:
         overrides = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
                          buffer_size=4096, batch_size=128)  # fmt: skip
     cfg = parse_agent(args.agent, **overrides)
+    command = common.command_line("experiments/profile_learner.py", sys.argv[1:])
+    if args.attribute:
+        trace_file, hlo_file = args.attribute
+        events, _ = device_events(json.loads(gzip.decompress(trace_file.read_bytes())))
+        hlo = gzip.decompress(hlo_file.read_bytes()).decode()
+        kept = trace_file.parent / "profile_learner.json"  # the run the trace was kept with
+        measured = json.loads(kept.read_text()) if kept.exists() else {}
+        title = (f"{cfg.name}, {args.agents[0]} agents, {args.updates} updates traced on "
+                 f"{measured.get('device', '?')}, {measured.get('date', '?')}")  # fmt: skip
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_attribution(args.out, attribute(events, hlo, args.updates), title, command)
+        return
     where = common.provenance()
     ceiling = common.matmul_ceiling(2048 if args.small else 8192) / 1e12
     print(f"device: {where['device']} ({where['backend']}); fp32 matmul {ceiling:.1f} TFLOP/s")
@@ -172,7 +297,11 @@ def main() -> None:
                 (args.out / "profile_learner_hlo.txt.gz").write_bytes(
                     gzip.compress(row["_hlo"].encode())
                 )
-        for k in ("_trace_file", "_hlo"):
+                title = (f"{cfg.name}, {n} agents, {args.updates} updates traced on "
+                         f"{where['device']}, {where['date']}")  # fmt: skip
+                rows_ops = attribute(row["_events"], row["_hlo"], args.updates)
+                write_attribution(args.out, rows_ops, title, command)
+        for k in ("_trace_file", "_hlo", "_events"):
             row.pop(k)
         rows.append(row)
         busy = 100 * row["device_busy_us"] / (1e6 * row["wall_s"])
@@ -225,7 +354,6 @@ def main() -> None:
                 formats=("", "", "d", ".2f", ".1f"),
             ),  # fmt: skip
         ]
-    command = common.command_line("experiments/profile_learner.py", sys.argv[1:])
     lines += ["", f"Command: `{command}`", ""]
     common.write_markdown(args.out / "profile_learner.md", lines)
 
