@@ -223,8 +223,8 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
     """This step's learning: nothing in a collect phase, the phase's update (k += 1) in an
     offline phase, ``rl_learn(state, hp, step_index)`` in RL. Returns (state, metrics,
     nonfinite) with one metrics dict for all phases (NaN where a phase computes nothing)
-    and ``train/phase``. A gated phase's update runs only where ``gate`` (``chunk_gate``)
-    says some agent may be in it; otherwise its (unselected) branch returns the state."""
+    and ``train/phase``. A gated phase's update is computed before the switch, under
+    ``lax.cond`` on ``gate`` (``chunk_gate``): only while some agent may be in it."""
 
     def idle(state, hp, step_index):
         return state, {}, jnp.zeros((), bool)
@@ -233,16 +233,20 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
     index, unique = _branch_table(schedule, phase, keys)
 
     def offline(i, update):
+        if schedule.phases[i].gated:
+            # Outside the switch: under vmap a batched switch batches all its operands, and a
+            # cond inside a branch would become a select. Here ``gate`` is unbatched, so
+            # the cond skips the update while no agent can be in a phase that runs it.
+            shape = jax.eval_shape(update, state, hp)
+            same = [j for j, k in enumerate(keys) if k is update]  # phases sharing it
+            result = jax.lax.cond(
+                jnp.any(gate[jnp.asarray(same)]), update,
+                lambda s, _: (s, nan_like(shape[1]), jnp.zeros((), bool)), state, hp,
+            )  # fmt: skip
+            update = lambda *_: result  # noqa: E731
+
         def run(state, hp, step_index):
-            if schedule.phases[i].gated:
-                shape = jax.eval_shape(update, state, hp)
-                same = [j for j, k in enumerate(keys) if k is update]  # phases sharing it
-                state, metrics, bad = jax.lax.cond(
-                    jnp.any(gate[jnp.asarray(same)]), update,
-                    lambda s, _: (s, nan_like(shape[1]), jnp.zeros((), bool)), state, hp,
-                )  # fmt: skip
-            else:
-                state, metrics, bad = update(state, hp)
+            state, metrics, bad = update(state, hp)
             prior = state.prior.replace(offline_steps=state.prior.offline_steps + 1)
             return state.replace(prior=prior), metrics, bad
 

@@ -233,6 +233,28 @@ def test_mcp_run_directory(mcp_functions, tmp_path):
     assert not (tmp_path / "bad").exists(), "checked before anything is written"
 
 
+def _primitives(jaxpr, found):
+    for eqn in jaxpr.eqns:
+        found.append(eqn.primitive.name)
+        for value in eqn.params.values():
+            for sub in value if isinstance(value, tuple | list) else [value]:
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    _primitives(inner, found)
+    return found
+
+
+def test_heavy_bodies_are_real_branches(mcp_population, mcp_functions):
+    """In the population's program the MPC plan and the four gated offline bodies
+    (normalise, fit_model, fit_actor, warmup) are ``cond``s, not batched selects: each is
+    skipped once the population's gate is off (all agents past them)."""
+    _, _, hp, agents, _ = mcp_population
+    _, init_fn, chunk_fn = mcp_functions
+    state = jax.eval_shape(init_fn, agent_keys([a["seed"] for a in agents]))
+    jaxpr = chunk_fn.trace(state, hp, jnp.int32(0)).jaxpr  # cached: no new compile
+    assert _primitives(jaxpr.jaxpr, []).count("cond") == 5
+
+
 def test_chunk_gate():
     """Phase i's body may run in a chunk iff some live agent starts it in phase <= i."""
     schedule = phases.Schedule(phases=(), init=lambda *_: None)
