@@ -173,7 +173,10 @@ def check_baseline_learner(algo: str, advisor_data: bool, advisor_policy: bool) 
             f"{', '.join(BASELINE_LEARNERS)}"
         )
     if advisor_data or advisor_policy:
-        raise ValueError("a baseline agent takes no advisor switches (AfD, AfP): use 'LfD'")
+        raise ValueError(
+            "a baseline agent takes no advisor switches (AfD, AfP): use "
+            f"{' or '.join(map(repr, BASELINE_NAMES.values()))}"
+        )
 
 
 def prior_episodes(settings: BaselineConfig, hp) -> np.ndarray:

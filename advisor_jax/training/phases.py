@@ -122,7 +122,7 @@ class PhaseState:
     """Per-agent state of a baseline's phases (``TrainState.prior``)."""
 
     offline_steps: jax.Array  # () int32, k: offline steps done
-    data: Any  # the baseline's own (LfD: the imitation's Adam state)
+    data: Any  # the baseline's own (LfD: the imitation's Adam state; MCP+MF: McpData)
 
 
 def make_schedule(cfg: TrainConfig, learner, actor, env=None) -> Schedule | None:
