@@ -1,17 +1,21 @@
-"""Static settings of the paper's baselines (Table 1): LfD [59] (docs/baselines.md).
+"""Static settings of the paper's baselines (Table 1): LfD [59] and MCP + model-free [31]
+(docs/baselines.md).
 
 A baseline agent is the ``DDPG`` row (or ``TD3``, ``--baseline learner=td3``) preceded by
 prior-knowledge phases that count against the same N_total episodes. This module holds what
 is *static* about them (loop lengths and batch shapes: ``BaselineConfig``), parses
 ``--baseline KEY=VALUE`` and checks the *vmappable* settings (``HParams.demo_episodes``,
-``bc_lr``) against the run's budget. The phases themselves live in
-``training/phases.py`` (the hook) and ``training/lfd.py`` (LfD's phases).
+``random_episodes``, ``mpc_episodes``, ``dagger_episodes``, ``bc_lr``, ``model_lr``,
+``model_noise``) against the run's budget. The phases themselves live in
+``training/phases.py`` (the hook), ``training/lfd.py`` and ``training/mcp.py``.
 
-Defaults (docs/baselines.md, "LfD", "Rules shared by both baselines"): imitation by
-``bc_steps`` = 5,000 Adam steps of batch ``bc_batch`` = 512 on the demonstrations, then
-``critic_warmup`` = 1,000 critic-only updates before the first actor update; the ``quick``
-preset shrinks them (200, 128, 100). Only ``dataclasses`` and the standard library here:
-``config`` imports this module.
+Defaults (docs/baselines.md, "LfD", "MCP + model-free", "Rules shared by both baselines"):
+imitation by ``bc_steps`` = 5,000 Adam steps of batch ``bc_batch`` = 512, then
+``critic_warmup`` = 1,000 critic-only updates before the first actor update; MCP+MF's model
+(500, 500) fitted ``model_steps`` = 3,000 steps of batch 512 per fit, random shooting with
+K = 1,000 candidates over H = 20 steps, 4 MPC rounds and 4 DAgger rounds. The ``quick``
+preset shrinks them. Only ``dataclasses`` and the standard library here: ``config`` imports
+this module.
 """
 
 from __future__ import annotations
@@ -23,21 +27,32 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 # Agent name (as ``parse_agent`` accepts it, any case) -> BaselineConfig.kind.
-BASELINE_AGENTS: dict[str, str] = {"lfd": "lfd"}
+BASELINE_AGENTS: dict[str, str] = {"lfd": "lfd", "mcp+mf": "mcp"}
 # kind -> the agent's display name (``AgentConfig.name``).
-BASELINE_NAMES: dict[str, str] = {"lfd": "LfD"}
+BASELINE_NAMES: dict[str, str] = {"lfd": "LfD", "mcp": "MCP+MF"}
 # Learners a baseline's RL phase may use (``AgentConfig.algo``): the shared rules' DDPG,
 # or TD3 with Table A4's σ̄, c, d.
 BASELINE_LEARNERS: tuple[str, ...] = ("ddpg", "td3")
 # HParams fields that only a baseline reads (``--hp`` / ``--grid`` refuse them otherwise).
-BASELINE_HPARAMS: dict[str, tuple[str, ...]] = {"lfd": ("demo_episodes", "bc_lr")}
-# Per-preset overrides of BaselineConfig (docs/baselines.md, "Fitting the code base").
+BASELINE_HPARAMS: dict[str, tuple[str, ...]] = {
+    "lfd": ("demo_episodes", "bc_lr"),
+    "mcp": ("random_episodes", "mpc_episodes", "dagger_episodes", "bc_lr", "model_lr",
+            "model_noise"),
+}  # fmt: skip
+# Per-preset overrides of BaselineConfig (docs/baselines.md, "Fitting the code base"); a
+# kind takes the keys it knows (BASELINE_KEYS).
 BASELINE_PRESETS: dict[str, dict] = {
     "paper": {},
     "stable": {},
     "physical": {},
-    "quick": dict(bc_steps=200, bc_batch=128, critic_warmup=100),
-}
+    "quick": dict(bc_steps=200, bc_batch=128, critic_warmup=100, model_hidden=(64, 64),
+                  model_steps=200, model_batch=128, mpc_horizon=5, mpc_candidates=64,
+                  mpc_rounds=2, dagger_rounds=2),
+}  # fmt: skip
+
+
+def _is_int(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | np.integer)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +60,8 @@ class BaselineConfig:
     """Static settings of a baseline agent: the phases' loop lengths and batch sizes."""
 
     kind: str = "lfd"
-    """Which baseline: lfd (Pfeiffer et al.: demonstrations, imitation, then RL)."""
+    """Which baseline: lfd (Pfeiffer et al.: demonstrations, imitation, then RL) or mcp
+    (Nagabandi et al.: random data, model, MPC rounds, imitation of the MPC, DAgger, RL)."""
     bc_steps: int = 5000
     """Imitation: Adam steps of the actor on the demonstrations (one per scan step)."""
     bc_batch: int = 512
@@ -53,19 +69,45 @@ class BaselineConfig:
     critic_warmup: int = 1000
     """Critic-only updates after imitation, before the first actor update (0: none, the
     sources' literal reading)."""
+    model_hidden: tuple[int, ...] = (500, 500)
+    """MCP+MF: the dynamics model's hidden widths."""
+    model_steps: int = 3000
+    """MCP+MF: Adam steps of each model fit (after the random data and each MPC round)."""
+    model_batch: int = 512
+    """MCP+MF: model minibatch."""
+    mpc_horizon: int = 20
+    """MCP+MF: H, steps of each random-shooting candidate (1.0 s)."""
+    mpc_candidates: int = 1000
+    """MCP+MF: K, candidate action sequences per control step."""
+    mpc_rounds: int = 4
+    """MCP+MF: rounds of ``mpc_episodes`` MPC episodes, each followed by a model refit."""
+    dagger_rounds: int = 4
+    """MCP+MF: rounds of ``dagger_episodes`` actor episodes labelled by the MPC, each followed
+    by a refit of the actor (0: imitation of the MPC rounds only)."""
 
     def __post_init__(self):
         if self.kind not in BASELINE_NAMES:
             raise ValueError(
                 f"unknown baseline kind {self.kind!r}; choose one of {', '.join(BASELINE_NAMES)}"
             )
-        for name in ("bc_steps", "bc_batch"):
+        for name in ("bc_steps", "bc_batch", "model_steps", "model_batch", "mpc_horizon",
+                     "mpc_candidates", "mpc_rounds"):  # fmt: skip
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
+            if not _is_int(value) or value <= 0:
                 raise ValueError(f"baseline setting {name} must be a positive integer, got {value}")
-        value = self.critic_warmup
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-            raise ValueError(f"baseline setting critic_warmup must be an integer >= 0, got {value}")
+        for name in ("critic_warmup", "dagger_rounds"):
+            value = getattr(self, name)
+            if not _is_int(value) or value < 0:
+                raise ValueError(f"baseline setting {name} must be an integer >= 0, got {value}")
+        hidden = self.model_hidden
+        if isinstance(hidden, int | str) or not hidden:
+            raise ValueError(f"baseline setting model_hidden must be widths like 500,500, got "
+                             f"{hidden!r}")  # fmt: skip
+        hidden = tuple(hidden)  # a list from run.json
+        if any(not _is_int(w) or w <= 0 for w in hidden):
+            raise ValueError(f"baseline setting model_hidden must be positive widths, got "
+                             f"{','.join(map(str, hidden))}")  # fmt: skip
+        object.__setattr__(self, "model_hidden", tuple(int(w) for w in hidden))
 
     @property
     def name(self) -> str:
@@ -74,7 +116,11 @@ class BaselineConfig:
 
 # ``--baseline KEY=VALUE``: the keys each kind knows. ``learner`` sets AgentConfig.algo.
 _FIELDS = tuple(f.name for f in dataclasses.fields(BaselineConfig) if f.name != "kind")
-BASELINE_KEYS: dict[str, tuple[str, ...]] = {"lfd": ("learner", *_FIELDS)}
+_LFD_FIELDS = ("bc_steps", "bc_batch", "critic_warmup")
+BASELINE_KEYS: dict[str, tuple[str, ...]] = {
+    "lfd": ("learner", *_LFD_FIELDS),
+    "mcp": ("learner", *_FIELDS),
+}
 
 
 def parse_baseline_settings(items: Sequence[str], kind: str | None, agent: str) -> dict:
@@ -105,6 +151,14 @@ def parse_baseline_settings(items: Sequence[str], kind: str | None, agent: str) 
         if key == "learner":
             settings[key] = value.lower()
             continue
+        if key == "model_hidden":
+            try:
+                settings[key] = tuple(int(w) for w in value.split(","))
+            except ValueError:
+                raise ValueError(
+                    f"baseline setting model_hidden={value!r} must be integer widths, e.g. 500,500"
+                ) from None
+            continue
         try:
             settings[key] = int(value)
         except ValueError:
@@ -120,33 +174,73 @@ def check_baseline_learner(algo: str, advisor_data: bool, advisor_policy: bool) 
             f"{', '.join(BASELINE_LEARNERS)}"
         )
     if advisor_data or advisor_policy:
-        raise ValueError("a baseline agent takes no advisor switches (AfD, AfP): use 'LfD'")
+        raise ValueError(
+            "a baseline agent takes no advisor switches (AfD, AfP): use "
+            f"{' or '.join(map(repr, BASELINE_NAMES.values()))}"
+        )
+
+
+def prior_episodes(settings: BaselineConfig, hp) -> np.ndarray:
+    """Episodes the baseline's phases before RL take, per stacked agent (float64 [agents])."""
+    if settings.kind == "lfd":
+        return np.atleast_1d(np.asarray(hp.demo_episodes, np.float64))
+    count = lambda name: np.atleast_1d(np.asarray(getattr(hp, name), np.float64))  # noqa: E731
+    return (count("random_episodes") + settings.mpc_rounds * count("mpc_episodes")
+            + settings.dagger_rounds * count("dagger_episodes"))  # fmt: skip
 
 
 def check_baseline_hparams(
-    kind: str | None, episodes: int, hp, grid: Mapping | None = None, agent: str = ""
-) -> None:
+    kind: str | BaselineConfig | None, episodes: int, hp, grid: Mapping | None = None,
+    agent: str = "",
+) -> None:  # fmt: skip
     """The vmappable settings against the budget, per stacked agent.
 
-    ``demo_episodes`` must be a whole number in [1, N_total): the RL phase needs at least
-    one episode. A grid over a baseline HParam is refused for a non-baseline agent.
+    ``kind``: the agent's ``BaselineConfig`` (or, for LfD, its kind), None for the paper's
+    agents. Each episode count must be a whole number >= 1 and the prior phases together
+    below N_total: the RL phase needs at least one episode. A grid over a baseline HParam is
+    refused for an agent that does not read it.
     """
-    if kind is None:
-        used = sorted(set(grid or ()) & {n for ns in BASELINE_HPARAMS.values() for n in ns})
-        if used:
-            raise ValueError(
-                f"unknown baseline setting {', '.join(used)}: agent {agent!r} is not a "
-                f"baseline (only {', '.join(BASELINE_NAMES.values())} read it)"
-            )
+    settings = BaselineConfig(kind=kind) if isinstance(kind, str) else kind
+    own = () if settings is None else BASELINE_HPARAMS[settings.kind]
+    foreign = {n for ns in BASELINE_HPARAMS.values() for n in ns} - set(own)
+    used = sorted(set(grid or ()) & foreign)
+    if used:
+        what = ("is not a baseline" if settings is None
+                else f"is {settings.name}, which does not read it")  # fmt: skip
+        readers = [BASELINE_NAMES[k] for k, ns in BASELINE_HPARAMS.items() if used[0] in ns]
+        raise ValueError(
+            f"unknown baseline setting {', '.join(used)}: agent {agent!r} {what} (only "
+            f"{', '.join(readers)} read it)"
+        )
+    if settings is None:
         return
-    values = np.atleast_1d(np.asarray(hp.demo_episodes, np.float64))
-    for i, d in enumerate(values):
-        where = f" (agent {i})" if values.size > 1 else ""
-        if not (math.isfinite(d) and d == round(d) and d >= 1):
-            raise ValueError(f"demo_episodes={d:g}{where} must be a whole number >= 1")
-        if d >= episodes:
+    counts = (("demo_episodes",) if settings.kind == "lfd" else
+              ("random_episodes", "mpc_episodes", "dagger_episodes"))  # fmt: skip
+    for name in counts:
+        values = np.atleast_1d(np.asarray(getattr(hp, name), np.float64))
+        for i, d in enumerate(values):
+            where = f" (agent {i})" if values.size > 1 else ""
+            if not (math.isfinite(d) and d == round(d) and d >= 1):
+                raise ValueError(f"{name}={d:g}{where} must be a whole number >= 1")
+    total = prior_episodes(settings, hp)
+    for i, d in enumerate(total):
+        where = f" (agent {i})" if total.size > 1 else ""
+        if d < episodes:
+            continue
+        if settings.kind == "lfd":
             raise ValueError(
                 f"demo_episodes={d:g}{where} must be below episodes={episodes} (N_total): the "
                 "demonstrations count against the budget and RL needs at least one episode; "
                 "lower demo_episodes or raise --episodes"
             )
+        picked = {}
+        for name in ("random_episodes", "mpc_episodes", "dagger_episodes"):
+            values = np.atleast_1d(np.asarray(getattr(hp, name), np.float64))
+            picked[name] = values[min(i, values.size - 1)]
+        raise ValueError(
+            f"random_episodes + mpc_rounds·mpc_episodes + dagger_rounds·dagger_episodes = "
+            f"{picked['random_episodes']:g} + {settings.mpc_rounds}·{picked['mpc_episodes']:g} + "
+            f"{settings.dagger_rounds}·{picked['dagger_episodes']:g} = {d:g}{where} must be "
+            f"below episodes={episodes} (N_total): every MCP+MF episode counts against the "
+            "budget and RL needs at least one; lower them or raise --episodes"
+        )

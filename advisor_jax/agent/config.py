@@ -28,6 +28,7 @@ from flax import struct
 
 from advisor_jax.agent.baselines import (
     BASELINE_AGENTS,
+    BASELINE_KEYS,
     BASELINE_NAMES,
     BASELINE_PRESETS,
     BaselineConfig,
@@ -71,7 +72,7 @@ class AgentConfig:
     learning_starts: int = 0
     """Transitions in the buffer before the first update; 0 means the batch size."""
     baseline: BaselineConfig | None = None
-    """A Table 1 baseline (LfD): prior-knowledge phases before the RL learner ``algo``
+    """A Table 1 baseline (LfD, MCP+MF): prior-knowledge phases before the RL learner ``algo``
     (ddpg or td3, no advisor switches); None for the paper's agents."""
 
     def __post_init__(self):
@@ -139,16 +140,20 @@ class AgentConfig:
 
 
 def parse_agent(name: str, **overrides) -> AgentConfig:
-    """``"ATD3+AfDP"`` or ``"LfD"`` (any case) → AgentConfig. Extra keyword args override
-    fields. A baseline name is recognised before the split on ``+`` (docs/baselines.md);
-    its learner is DDPG unless ``algo`` is overridden (``--baseline learner=td3``)."""
+    """``"ATD3+AfDP"``, ``"LfD"`` or ``"MCP+MF"`` (any case) → AgentConfig. Extra keyword
+    args override fields. A baseline name is recognised before the split on ``+``
+    (docs/baselines.md); its learner is DDPG unless ``algo`` is overridden
+    (``--baseline learner=td3``)."""
     plain = name.strip().lower().replace(" ", "")
     if plain in BASELINE_AGENTS:
         overrides = {"algo": "ddpg", "advisor_data": False, "advisor_policy": False, **overrides}
         overrides.setdefault("baseline", BaselineConfig(kind=BASELINE_AGENTS[plain]))
         return AgentConfig(**overrides)
     if overrides.get("baseline") is not None:
-        raise ValueError(f"agent {name!r} is not a baseline; a baseline config needs 'LfD'")
+        raise ValueError(
+            f"agent {name!r} is not a baseline; a baseline config needs "
+            f"{' or '.join(map(repr, BASELINE_NAMES.values()))}"
+        )
     parts = plain.split("+")
     algo, flags = parts[0], parts[1:]
     if algo in BASELINE_AGENTS:
@@ -199,7 +204,12 @@ class HParams:
     beta_normalize: float = 0.0  # 0: Eq. (2)'s step is β∇_aQ (paper); 1: scale-free, β/rms‖∇_aQ‖
     clip_actor_target: float = 0.0  # 0: Â as printed (paper); 1: Â clipped to the action box
     demo_episodes: float = 250.0  # D (LfD only): demonstration episodes, counted in N_total
-    bc_lr: float = 1e-3  # imitation learning rate (LfD only; mbmf.py's 1e-3)
+    bc_lr: float = 1e-3  # imitation learning rate (LfD, MCP+MF; mbmf.py's 1e-3)
+    random_episodes: float = 50.0  # R (MCP+MF only): uniform-action episodes, in N_total
+    mpc_episodes: float = 40.0  # M (MCP+MF only): MPC episodes per round, in N_total
+    dagger_episodes: float = 10.0  # MCP+MF only: actor episodes per DAgger round, in N_total
+    model_lr: float = 1e-3  # MCP+MF only: the dynamics model's Adam learning rate
+    model_noise: float = 0.01  # MCP+MF only: input noise σ of the model fit (normalised units)
 
 
 HPARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(HParams))
@@ -223,6 +233,11 @@ _HPARAM_RANGES = {
     "clip_actor_target": (0.0, 1.0, True, True),
     "demo_episodes": (1.0, math.inf, True, False),
     "bc_lr": (0.0, math.inf, False, False),
+    "random_episodes": (1.0, math.inf, True, False),
+    "mpc_episodes": (1.0, math.inf, True, False),
+    "dagger_episodes": (1.0, math.inf, True, False),
+    "model_lr": (0.0, math.inf, False, False),
+    "model_noise": (0.0, math.inf, True, False),
 }
 # Switches: traced like every hyperparameter (one sweep can hold both settings), 0 or 1 only.
 _SWITCHES = ("beta_normalize", "clip_actor_target")
@@ -299,18 +314,21 @@ PRESETS: dict[str, tuple[dict, dict, dict]] = {
         dict(buffer_size=50_000, batch_size=500, policy_delay=3),
         dict(arena="physical", episodes=200),
         dict(lr_actor=1e-4, eps_start=0.9, eps_decay=0.001, advisor_episodes=100.0,
-             target_noise=0.05, target_noise_clip=0.1, demo_episodes=100.0),
+             target_noise=0.05, target_noise_clip=0.1, demo_episodes=100.0,
+             random_episodes=20.0, mpc_episodes=16.0, dagger_episodes=4.0),
     ),
     # Small networks and budgets that train in minutes on a 2-core CPU.
     "quick": (
         dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=20_000, batch_size=128),
         dict(episodes=60, chunk_steps=500),
-        dict(lr_actor=1e-3, advisor_episodes=30.0, eps_decay=0.01, demo_episodes=30.0),
+        dict(lr_actor=1e-3, advisor_episodes=30.0, eps_decay=0.01, demo_episodes=30.0,
+             random_episodes=6.0, mpc_episodes=8.0, dagger_episodes=4.0),
     ),
 }  # fmt: skip
 # The baselines' static settings per preset (BaselineConfig overrides) are in
-# ``baselines.BASELINE_PRESETS``; their HParams (demo_episodes = N_T) are above.
+# ``baselines.BASELINE_PRESETS``; their HParams (demo_episodes = N_T; MCP+MF's random, MPC
+# and DAgger episodes summing to N_T) are above.
 
 
 def preset(
@@ -327,7 +345,9 @@ def preset(
     agent_kw, train_kw, hp_kw = PRESETS[name]
     agent_cfg = parse_agent(agent, **{**agent_kw, **agent_overrides})
     if agent_cfg.baseline is not None:
-        settings = {**BASELINE_PRESETS[name], **(baseline or {})}
+        kind = agent_cfg.baseline.kind
+        defaults = {k: v for k, v in BASELINE_PRESETS[name].items() if k in BASELINE_KEYS[kind]}
+        settings = {**defaults, **(baseline or {})}
         algo = settings.pop("learner", agent_cfg.algo)
         agent_cfg = dataclasses.replace(
             agent_cfg, algo=algo, baseline=dataclasses.replace(agent_cfg.baseline, **settings)

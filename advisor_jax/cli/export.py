@@ -63,7 +63,7 @@ def export_command(args: ExportArgs) -> dict:
         "source": str(args.source),
         "agent_index": args.agent,
         "seed": row["seed"],
-        "hparams": {k: row[k] for k in HPARAM_NAMES},
+        "hparams": {k: row[k] for k in HPARAM_NAMES if k in row},  # older runs lack newer ones
         "train_config": dataclasses.asdict(cfg),
     }
     meta = export_policy(

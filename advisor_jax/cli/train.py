@@ -15,7 +15,12 @@ from advisor_jax.agent.baselines import (
     parse_baseline_settings,
 )
 from advisor_jax.agent.config import PRESETS, TrainConfig, preset
-from advisor_jax.training.population import SEED_MAX, check_seed, parse_assignments
+from advisor_jax.training.population import (
+    SEED_MAX,
+    build_population,
+    check_seed,
+    parse_assignments,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +32,7 @@ class TrainArgs:
       advisor-jax train --preset paper --agent ADDPG+AfD --seeds 6 \
           --grid advisor_episodes=0,125,250,375,500
       advisor-jax train --preset paper --agent LfD --seeds 6 --grid demo_episodes=10,50,250
+      advisor-jax train --preset physical --agent MCP+MF --seeds 6 --baseline learner=td3
     """
 
     preset: Literal["quick", "paper", "stable", "physical"] = "quick"
@@ -36,7 +42,9 @@ class TrainArgs:
     A2/A4, physical column, physical arena)."""
     agent: str = "ATD3+AfDP"
     """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1), or
-    the baseline LfD (advisor demonstrations, imitation, then DDPG; docs/baselines.md)."""
+    a baseline (docs/baselines.md): LfD (advisor demonstrations, imitation, then DDPG) or
+    MCP+MF (random data, dynamics model, MPC rounds, imitation of the MPC with DAgger, then
+    DDPG)."""
     seeds: int = 1
     """Independent seeds per grid point."""
     seed: int = 0
@@ -46,9 +54,12 @@ class TrainArgs:
     grid: tuple[str, ...] = ()
     """Hyperparameter sweep NAME=V1,V2,... (cartesian product over all given names)."""
     baseline: tuple[str, ...] = ()
-    """Baseline (LfD) static settings KEY=VALUE: learner=ddpg|td3, bc_steps, bc_batch,
-    critic_warmup, e.g. --baseline learner=td3 bc_steps=2000. Its sweepable settings are
-    hyperparameters: --hp/--grid demo_episodes, bc_lr."""
+    """Baseline static settings KEY=VALUE: learner=ddpg|td3, bc_steps, bc_batch,
+    critic_warmup (LfD, MCP+MF); model_hidden (e.g. 500,500), model_steps, model_batch,
+    mpc_horizon, mpc_candidates, mpc_rounds, dagger_rounds (MCP+MF); e.g. --baseline
+    learner=td3 bc_steps=2000. Sweepable settings are hyperparameters (--hp/--grid):
+    demo_episodes, bc_lr (LfD); random_episodes, mpc_episodes, dagger_episodes, bc_lr,
+    model_lr, model_noise (MCP+MF)."""
     episodes: int | None = None
     """N_total, training episodes per agent (preset default if omitted)."""
     arena: str | None = None
@@ -137,11 +148,13 @@ def build_run(args: TrainArgs):
             f"{', '.join(both)} given to both --hp and --grid (the grid would override --hp); "
             "give each name once"
         )
-    if kind is None:  # --hp/--grid demo_episodes for DDPG: an unknown baseline setting
-        check_baseline_hparams(None, cfg.episodes, base_hp, {**grid, **overrides}, args.agent)
-    elif "demo_episodes" not in grid:  # fail before compiling (run_training checks each agent)
-        check_baseline_hparams(kind, cfg.episodes, base_hp)
+    # A baseline HParam of another agent (demo_episodes for DDPG or MCP+MF): an unknown
+    # baseline setting; episode counts against N_total per grid point, before compiling.
     seeds = list(range(args.seed, args.seed + args.seeds))
+    hp_check = build_population(base_hp, grid, seeds)[0] if grid else base_hp
+    check_baseline_hparams(
+        cfg.agent.baseline, cfg.episodes, hp_check, {**grid, **overrides}, args.agent
+    )
     arenas = args.eval_arenas or (
         ("physical",) if cfg.arena == "physical" else ("training", "validation")
     )

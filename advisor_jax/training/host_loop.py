@@ -121,7 +121,7 @@ def run_training(
     hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
     eval_from = check_seed(seeds[0] if eval_seed is None else eval_seed, "eval_seed")
     baseline = cfg.agent.baseline
-    check_baseline_hparams(baseline and baseline.kind, cfg.episodes, hp, grid, cfg.agent.name)
+    check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
     if resume and not (out_dir / "run.json").exists():
         raise ValueError(f"nothing to resume: {out_dir / 'run.json'} does not exist")
@@ -314,6 +314,13 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
     of one config keep and reuse them."""
     trainer = make_train(cfg)
     init, chunk = jax.vmap(trainer.init), jax.vmap(trainer.chunk, in_axes=(0, 0, None))
+    if trainer.schedule is not None and trainer.schedule.gated:  # MCP+MF
+        vmapped, schedule = jax.vmap(trainer.chunk, in_axes=(0, 0, None, None)), trainer.schedule
+
+        def chunk(state, hp, first_step):  # the flags from every agent: unbatched (phases)
+            gate = phases.population_gate(schedule, state, hp, cfg.episodes)
+            return vmapped(state, hp, first_step, gate)
+
     if placement is None or placement.mesh is None:
         return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0)
     agents, replicated = placement.agents(), placement.replicated()
@@ -344,9 +351,14 @@ def _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents, schedu
 
 def _final_params(state) -> dict:
     learner = state.learner
-    return {
+    params = {
         "actor": learner.actor,
         "critic": learner.critic,
         "target_actor": learner.target_actor,
         "target_critic": learner.target_critic,
     }
+    model = getattr(getattr(state.prior, "data", None), "model", None)
+    if model is not None:  # MCP+MF: the dynamics model's weights and normaliser
+        params["model"] = model.params
+        params["model_norm"] = model.norm
+    return params

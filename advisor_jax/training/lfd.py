@@ -38,7 +38,7 @@ def lfd_schedule(cfg: TrainConfig, learner, actor) -> Schedule:
     """demo (advisor, D episodes) → imitate (bc_steps) → warmup (critic_warmup) → RL."""
     settings = cfg.agent.baseline
 
-    def demonstrate(state, obs, actor_action, advisor_action, key, hp) -> Control:
+    def demonstrate(state, obs, actor_action, advisor_action, key, hp, extra) -> Control:
         # The advisor acts; OU noise is added by the trainer; a_adv is stored as the label.
         return Control(advisor_action, jnp.zeros(obs.shape[0], bool), 1.0)
 
@@ -55,7 +55,23 @@ def lfd_schedule(cfg: TrainConfig, learner, actor) -> Schedule:
         return state.replace(learner=learner_state, prior=state.prior.replace(data=opt),
                              key=key), metrics, bad  # fmt: skip
 
-    def warm_critic(state, hp):
+    phases = [
+        Phase("demo", episodes="demo_episodes", act=demonstrate),
+        Phase("imitate", steps=settings.bc_steps, update=imitate),
+    ]
+    if settings.critic_warmup:
+        warmup = warm_critic(cfg, learner)
+        phases.append(Phase("warmup", steps=settings.critic_warmup, update=warmup))
+    return Schedule(phases=tuple(phases), init=lambda learner_state, key: imitation_init(
+        learner_state.actor))  # fmt: skip
+
+
+def warm_critic(cfg: TrainConfig, learner):
+    """The critic warm-up update (one step; shared with MCP+MF): ``learner.critic_step`` on a
+    batch of n from the replay buffer, then the soft update of the target critic; the actor,
+    the target actor and the actor's Adam state are untouched."""
+
+    def update(state, hp):
         key, k_sample, k_critic = jax.random.split(state.key, 3)
         batch = replay_sample(state.replay, k_sample, cfg.agent.batch_size)
         learner_state, m = learner.critic_step(state.learner, batch, k_critic, hp)
@@ -66,11 +82,4 @@ def lfd_schedule(cfg: TrainConfig, learner, actor) -> Schedule:
         bad = ~(jnp.isfinite(m["loss/critic"]) & jnp.isfinite(m["grad_norm/critic"]))
         return state.replace(learner=learner_state, key=key), metrics, bad
 
-    phases = [
-        Phase("demo", episodes="demo_episodes", act=demonstrate),
-        Phase("imitate", steps=settings.bc_steps, update=imitate),
-    ]
-    if settings.critic_warmup:
-        phases.append(Phase("warmup", steps=settings.critic_warmup, update=warm_critic))
-    return Schedule(phases=tuple(phases), init=lambda learner_state: imitation_init(
-        learner_state.actor))  # fmt: skip
+    return update

@@ -22,9 +22,17 @@ N); offline step counts are static. Under ``vmap`` the phase is batched, so ``la
 computes every phase's body at every step and selects: an agent's results do not depend
 on its neighbours (vmapped = alone), but a step costs the sum of the bodies. For LfD that
 is one imitation step (an actor forward/backward) and one critic step beside the RL update.
-A heavy body (MCP+MF's MPC, K·H model calls) would be paid on every step of every agent; it
-should instead be gated by an unbatched flag from the host (see docs/baselines.md,
-"Fitting the code base").
+A heavy body (MCP+MF's MPC, K·H model calls; its model and actor fits) would be paid on
+every step of every agent, so a schedule can *gate* it: a ``Phase(gated=True)``'s update and
+the schedule's ``precompute`` (work shared by several collect phases, MCP+MF's MPC action)
+run under ``lax.cond`` on a flag that is the same for all agents of the population
+(``chunk_gate``: "some live agent is, at the start of this chunk, in phase i or an earlier
+one", computed outside the ``vmap`` from every agent's phase), so under ``vmap`` the cond
+stays a real branch and a population past those phases skips them. Phases only advance, so
+an agent in phase p at a chunk's start can reach, during the chunk, phases >= p only: the
+flag is on whenever an agent may need the body, and since an unselected branch's output is
+discarded, gating never changes an agent's results. A schedule without gated phases (LfD)
+compiles as before.
 
 To add a baseline: write its ``Phase``s (a controller for each collect phase, an update for
 each offline phase), the extra per-agent state its phases need (``Schedule.init``), and
@@ -54,6 +62,7 @@ class Control(NamedTuple):
     action: jax.Array  # [E, 2]
     actor_fired: jax.Array  # [E] bool: the actor chose the action (firing-rate log)
     noise: jax.Array | float  # 1.0: add the OU noise (advisor, actor); 0.0: none
+    label: jax.Array | None = None  # [E, 2] stored as Transition.advisor_action (None: a_adv)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,11 +74,15 @@ class Phase:
     episodes: str | None = None
     """Collect phase: the ``HParams`` field holding its episode count."""
     act: Callable[..., Control] | None = None
-    """Collect phase: (state, obs [E, 20], actor_action, advisor_action, key, hp) -> Control."""
+    """Collect phase: (state, obs [E, 20], actor_action, advisor_action, key, hp, extra) ->
+    Control; ``extra`` is the schedule's ``precompute`` output (None without one)."""
     steps: int = 0
     """Offline phase: scan steps it takes (static)."""
     update: Callable[..., tuple[Any, Metrics, jax.Array]] | None = None
     """Offline phase: (state, hp) -> (state, metrics, nonfinite); one step, pure."""
+    gated: bool = False
+    """Offline phase: run ``update`` under ``lax.cond`` on the population's flag for this
+    phase (``chunk_gate``), so that it is skipped once no agent can be in it."""
 
     def __post_init__(self):
         collect = self.episodes is not None and self.act is not None
@@ -82,7 +95,17 @@ class Schedule(NamedTuple):
     """A baseline's phases before RL and the extra state they carry."""
 
     phases: tuple[Phase, ...]
-    init: Callable[[Any], Any]  # (LearnerState) -> the phases' own per-agent state
+    init: Callable[[Any, jax.Array], Any]  # (LearnerState, key) -> the phases' own state
+    precompute: Callable[..., Any] | None = None
+    """(state, obs [E, 20], key, hp) -> extra, passed to every collect phase's ``act``;
+    computed under ``lax.cond``, only while some agent may be in a phase of ``uses``."""
+    uses: tuple[int, ...] = ()
+    """Indices of the phases that read ``precompute``'s output."""
+
+    @property
+    def gated(self) -> bool:
+        """Whether ``chunk`` takes the population's flags (``chunk_gate``)."""
+        return self.precompute is not None or any(p.gated for p in self.phases)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -99,10 +122,10 @@ class PhaseState:
     """Per-agent state of a baseline's phases (``TrainState.prior``)."""
 
     offline_steps: jax.Array  # () int32, k: offline steps done
-    data: Any  # the baseline's own (LfD: the imitation's Adam state)
+    data: Any  # the baseline's own (LfD: the imitation's Adam state; MCP+MF: McpData)
 
 
-def make_schedule(cfg: TrainConfig, learner, actor) -> Schedule | None:
+def make_schedule(cfg: TrainConfig, learner, actor, env=None) -> Schedule | None:
     """The schedule of ``cfg``'s baseline, None for the paper's agents."""
     baseline = cfg.agent.baseline
     if baseline is None:
@@ -111,11 +134,15 @@ def make_schedule(cfg: TrainConfig, learner, actor) -> Schedule | None:
         from advisor_jax.training.lfd import lfd_schedule
 
         return lfd_schedule(cfg, learner, actor)
+    if baseline.kind == "mcp":
+        from advisor_jax.training.mcp import mcp_schedule
+
+        return mcp_schedule(cfg, learner, actor, env)
     raise ValueError(f"no phases for baseline kind {baseline.kind!r}")
 
 
-def init_state(schedule: Schedule, learner_state) -> PhaseState:
-    return PhaseState(offline_steps=jnp.int32(0), data=schedule.init(learner_state))
+def init_state(schedule: Schedule, learner_state, key: jax.Array) -> PhaseState:
+    return PhaseState(offline_steps=jnp.int32(0), data=schedule.init(learner_state, key))
 
 
 def phase_index(schedule: Schedule, episodes: jax.Array, offline: jax.Array, hp: HParams):
@@ -132,41 +159,92 @@ def phase_index(schedule: Schedule, episodes: jax.Array, offline: jax.Array, hp:
     return jnp.where(jnp.all(done), len(done), jnp.argmin(done)).astype(jnp.int32)
 
 
-def control(schedule, phase, state, obs, actor_action, advisor_action, key, hp):
+def chunk_gate(schedule: Schedule, phase: jax.Array, live: jax.Array) -> jax.Array:
+    """[len(phases) + 1] bool: phase i may run during the next chunk for some agent.
+
+    ``phase`` [agents] (or ()) is each agent's phase at the chunk's start, ``live`` whether
+    it still plays (N < N_total; padding agents do not). Phases only advance, so gate[i] =
+    some live agent is in phase i or an earlier one. Compute it outside the ``vmap`` over
+    agents: it must be the same for all (unbatched) for ``lax.cond`` to skip work."""
+    n = len(schedule.phases) + 1
+    first = jnp.min(jnp.where(live, phase, n))
+    return first <= jnp.arange(n)
+
+
+def population_gate(schedule: Schedule, state, hp: HParams, n_total: int) -> jax.Array:
+    """``chunk_gate`` of a population's stacked state (or of one agent's)."""
+    index = phase_index
+    if state.episodes.ndim:
+        index = jax.vmap(phase_index, in_axes=(None, 0, 0, 0))
+    phase = index(schedule, state.episodes, state.prior.offline_steps, hp)
+    return chunk_gate(schedule, phase, state.episodes < n_total)
+
+
+def control(schedule, phase, state, obs, actor_action, advisor_action, key, hp, gate=None):
     """(Control, acting) of this step: the phase's controller; the actor in RL; in an
-    offline phase ``acting`` is False and the env must be held."""
+    offline phase ``acting`` is False and the env must be held. ``gate``: ``chunk_gate``
+    (needed when the schedule has a ``precompute``)."""
     n_envs = obs.shape[0]
-    actor = Control(actor_action, jnp.ones(n_envs, bool), jnp.float32(1.0))
+    actor = Control(actor_action, jnp.ones(n_envs, bool), jnp.float32(1.0), advisor_action)
+    extra = None
+    if schedule.precompute is not None:
+        key, k_pre = jax.random.split(key)
+        on = jnp.any(gate[jnp.asarray(schedule.uses)])
+        shape = jax.eval_shape(schedule.precompute, state, obs, k_pre, hp)
+        extra = jax.lax.cond(
+            on, schedule.precompute, lambda *_: nan_like(shape), state, obs, k_pre, hp
+        )
 
     def branch(phase_def):
         if phase_def is None or phase_def.act is None:  # RL, or offline (ignored)
             return lambda *_: actor
-        return lambda *a: _as_control(phase_def.act(*a), n_envs)
+        return lambda *a: _as_control(phase_def.act(*a), n_envs, advisor_action)
 
-    branches = [branch(p) for p in schedule.phases] + [branch(None)]
-    chosen = jax.lax.switch(phase, branches, state, obs, actor_action, advisor_action, key, hp)
+    keys = [p.act if p.act is not None else "actor" for p in schedule.phases] + ["actor"]
+    index, unique = _branch_table(schedule, phase, keys)
+    branches = [branch(schedule.phases[keys.index(k)] if k != "actor" else None) for k in unique]
+    chosen = jax.lax.switch(
+        index, branches, state, obs, actor_action, advisor_action, key, hp, extra
+    )
     offline = jnp.asarray([p.act is None for p in schedule.phases] + [False])
     return chosen, ~offline[phase]
 
 
-def _as_control(c: Control, n_envs: int) -> Control:
+def _as_control(c: Control, n_envs: int, advisor_action: jax.Array) -> Control:
     return Control(
         action=c.action,
         actor_fired=jnp.broadcast_to(jnp.asarray(c.actor_fired, bool), (n_envs,)),
         noise=jnp.asarray(c.noise, jnp.float32),
+        label=advisor_action if c.label is None else c.label,
     )
 
 
-def learn(schedule, phase, state, hp, step_index, rl_learn):
+def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
     """This step's learning: nothing in a collect phase, the phase's update (k += 1) in an
     offline phase, ``rl_learn(state, hp, step_index)`` in RL. Returns (state, metrics,
     nonfinite) with one metrics dict for all phases (NaN where a phase computes nothing)
-    and ``train/phase``."""
+    and ``train/phase``. A gated phase's update is computed before the switch, under
+    ``lax.cond`` on ``gate`` (``chunk_gate``): only while some agent may be in it."""
 
     def idle(state, hp, step_index):
         return state, {}, jnp.zeros((), bool)
 
-    def offline(update):
+    keys = [p.update if p.update is not None else "idle" for p in schedule.phases] + ["rl"]
+    index, unique = _branch_table(schedule, phase, keys)
+
+    def offline(i, update):
+        if schedule.phases[i].gated:
+            # Outside the switch: under vmap a batched switch batches all its operands, and a
+            # cond inside a branch would become a select. Here ``gate`` is unbatched, so
+            # the cond skips the update while no agent can be in a phase that runs it.
+            shape = jax.eval_shape(update, state, hp)
+            same = [j for j, k in enumerate(keys) if k is update]  # phases sharing it
+            result = jax.lax.cond(
+                jnp.any(gate[jnp.asarray(same)]), update,
+                lambda s, _: (s, nan_like(shape[1]), jnp.zeros((), bool)), state, hp,
+            )  # fmt: skip
+            update = lambda *_: result  # noqa: E731
+
         def run(state, hp, step_index):
             state, metrics, bad = update(state, hp)
             prior = state.prior.replace(offline_steps=state.prior.offline_steps + 1)
@@ -174,8 +252,8 @@ def learn(schedule, phase, state, hp, step_index, rl_learn):
 
         return run
 
-    branches = [idle if p.update is None else offline(p.update) for p in schedule.phases]
-    branches.append(rl_learn)
+    branches = [rl_learn if k == "rl" else idle if k == "idle" else offline(keys.index(k), k)
+                for k in unique]  # fmt: skip
     shapes = {}
     for b in branches:
         shapes.update(jax.eval_shape(b, state, hp, step_index)[1])
@@ -190,9 +268,24 @@ def learn(schedule, phase, state, hp, step_index, rl_learn):
         return run
 
     state, metrics, bad = jax.lax.switch(
-        phase, [complete(b) for b in branches], state, hp, step_index
+        index, [complete(b) for b in branches], state, hp, step_index
     )
     return state, {**metrics, "train/phase": phase}, bad
+
+
+def _branch_table(schedule: Schedule, phase: jax.Array, keys: list) -> tuple[jax.Array, list]:
+    """(branch index, unique keys): a gated schedule (MCP+MF) compiles each distinct body
+    once, however many rounds repeat it (``keys``: one per phase, RL last, compared by
+    identity); an ungated one (LfD) keeps one branch per phase, as it was built."""
+    if not schedule.gated:
+        return phase, keys
+    unique = []
+    for k in keys:
+        if not any(k is u for u in unique):
+            unique.append(k)
+    table = jnp.asarray([next(j for j, u in enumerate(unique) if u is k) for k in keys],
+                        jnp.int32)  # fmt: skip
+    return table[phase], unique
 
 
 def describe(schedule: Schedule) -> list[dict]:

@@ -19,9 +19,11 @@ learns nothing: its learning rates and τ are multiplied by 0, so its parameters
 as they were, and its episode log ignores further episodes. This makes one vmapped run of
 many agents equal to the same agents run one by one.
 
-Baselines (LfD, docs/baselines.md). A baseline agent's prior-knowledge phases (demonstration
-episodes, imitation, critic warm-up) run in the same scan, chosen per step from its own
-counters by ``training/phases.py``; a paper agent's program is unchanged (``prior`` None).
+Baselines (LfD, MCP+MF; docs/baselines.md). A baseline agent's prior-knowledge phases
+(demonstration, random or MPC episodes, model and actor fits, critic warm-up) run in the
+same scan, chosen per step from its own counters by ``training/phases.py``; a paper agent's
+program is unchanged (``prior`` None). MCP+MF's heavy bodies run under ``lax.cond`` on the
+population's unbatched ``gate`` (``chunk``'s fourth argument).
 
 Static schedule. The warm-up test and the TD3 delay ``update % d == 0`` depend only on the
 global step index, which the caller passes *unbatched* (``first_step``) and the scan derives
@@ -105,11 +107,15 @@ def make_train(cfg: TrainConfig) -> Trainer:
     action_low = jnp.asarray(spec.ACTION_LOW, jnp.float32)
     action_high = jnp.asarray(spec.ACTION_HIGH, jnp.float32)
     collision = envs.COLLISION
-    schedule = phases.make_schedule(cfg, learner, actor)  # None for the paper's agents
+    schedule = phases.make_schedule(cfg, learner, actor, env)  # None for the paper's agents
+    gated = schedule is not None and schedule.gated
 
     def init(key: jax.Array) -> TrainState:
         key, k_learner, k_env = jax.random.split(key, 3)
         learner_state = learner.init(k_learner)
+        prior = None  # a baseline's phase state; its key leaves the others' streams as they were
+        if schedule is not None:
+            prior = phases.init_state(schedule, learner_state, jax.random.fold_in(k_learner, 1))
         return TrainState(
             learner=learner_state,
             replay=replay_init(agent.buffer_size),
@@ -127,10 +133,12 @@ def make_train(cfg: TrainConfig) -> Trainer:
                 actor_steps=jnp.zeros(n_total, jnp.int32),
             ),
             key=key,
-            prior=None if schedule is None else phases.init_state(schedule, learner_state),
+            prior=prior,
         )
 
-    def collect(state: TrainState, hp: HParams, active: jax.Array, phase=None) -> TrainState:
+    def collect(
+        state: TrainState, hp: HParams, active: jax.Array, phase=None, gate=None
+    ) -> TrainState:
         """One environment step of every env of the agent (Alg. 1 / A2, steps 8-16).
 
         A baseline agent (``phase`` given) executes its phase's controller instead, and holds
@@ -159,10 +167,11 @@ def make_train(cfg: TrainConfig) -> Trainer:
         noise_state, noise = ou_step(state.noise, k_noise, hp.ou_theta, hp.ou_sigma)
         if schedule is not None:
             control, acting = phases.control(
-                schedule, phase, state, obs, actor_action, adv_action, k_phase, hp
+                schedule, phase, state, obs, actor_action, adv_action, k_phase, hp, gate
             )
             chosen, used_advisor = control.action, ~control.actor_fired
             noise = noise * control.noise
+            adv_action = control.label  # the stored label: a_adv unless the phase has its own
         action = jnp.clip(chosen + noise, action_low, action_high)
         env_state = jax.vmap(env.step)(state.env, action)
 
@@ -229,8 +238,15 @@ def make_train(cfg: TrainConfig) -> Trainer:
         learner_state, metrics, bad = jax.lax.cond(ready, run_updates, no_updates, state.learner)
         return state.replace(learner=learner_state, key=key), metrics, bad
 
-    def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
-        """`chunk_steps` environment steps; `first_step` is the global index of the first."""
+    def chunk(state: TrainState, hp: HParams, first_step: jax.Array, gate=None):
+        """`chunk_steps` environment steps; `first_step` is the global index of the first.
+
+        ``gate`` (a gated baseline, MCP+MF): ``phases.chunk_gate`` of the whole population,
+        computed outside the vmap (``host_loop.population_functions``); None computes it from
+        this agent (exact when it runs alone; under a vmap it is then batched and every
+        gated body runs, as in an ungated schedule)."""
+        if gated and gate is None:
+            gate = phases.population_gate(schedule, state, hp, n_total)
 
         def body(state: TrainState, i):
             active = (state.episodes < n_total) & ~state.diverged
@@ -239,15 +255,16 @@ def make_train(cfg: TrainConfig) -> Trainer:
                 lr_critic=hp.lr_critic * active,
                 tau=hp.tau * active,
                 bc_lr=hp.bc_lr * active,
+                model_lr=hp.model_lr * active,
             )
             if schedule is None:
                 state = collect(state, hp, active)
                 state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
             else:  # the phase at the start of the step decides both halves
                 phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
-                state = collect(state, hp, active, phase)
+                state = collect(state, hp, active, phase, gate)
                 state, metrics, nonfinite = phases.learn(
-                    schedule, phase, state, frozen_hp, first_step + i, learn
+                    schedule, phase, state, frozen_hp, first_step + i, learn, gate
                 )
             state = state.replace(diverged=state.diverged | (nonfinite & active))
             metrics = {**metrics, "train/active": active, "train/episodes": state.episodes}

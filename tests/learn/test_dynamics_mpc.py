@@ -1,5 +1,6 @@
 """The MCP + model-free building blocks (docs/baselines.md): dynamics model, random-shooting
-MPC, Eq. 8 from observations and the imitation step.
+MPC and Eq. 8 from observations. The behaviour-cloning step is agent/imitation.py's, tested in
+tests/learn/test_imitation.py.
 
 Small shapes throughout: a (64, 64) model, a (64, 64) actor, a few hundred env steps. What
 each test would catch: a model that does not learn (or learns from rows past the valid
@@ -16,10 +17,8 @@ import io
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 import pytest
 
-from advisor_jax.agent.advisor import advisor_action, arena_advisor
 from advisor_jax.agent.dynamics_model import (
     make_dynamics_model,
     normalizer_from_data,
@@ -31,8 +30,7 @@ from advisor_jax.agent.mpc import (
     plan,
     sample_candidates,
 )
-from advisor_jax.agent.mpc_imitation import imitation_step
-from advisor_jax.agent.networks import count_params, init_actor, make_actor
+from advisor_jax.agent.networks import count_params
 from advisor_jax.agent.replay_buffer import Transition
 from envs.reward import eq8_from_obs
 from envs.state import EnvConfig
@@ -316,41 +314,6 @@ def test_mpc_policy_vmaps_over_agents():
         alone = policy(one.params, one.norm, obs[i], keys[i])
         np.testing.assert_allclose(both[i], alone, rtol=1e-6, atol=1e-6)
         assert 0.0 <= float(alone[0]) <= 1.0 and -1.0 <= float(alone[1]) <= 1.0
-
-
-# -- imitation ------------------------------------------------------------------------------
-
-
-def test_imitation_reduces_distance_on_held_out_states():
-    """Advisor labels on 2,000 / 500 synthetic states, actor (64, 64), 300 steps: held-out
-    mean ‖π − a‖² falls below a quarter of its initial value."""
-    rng = np.random.default_rng(14)
-    n = 2500
-    obs = np.concatenate(
-        [
-            rng.uniform(0.0, 1.0, (n, 16)),
-            rng.uniform(-np.pi, np.pi, (n, 1)),
-            rng.uniform(0.0, 5.0, (n, 1)),
-            rng.uniform(-1.0, 1.0, (n, 2)),
-        ],
-        axis=1,
-    ).astype(np.float32)
-    labels = np.asarray(
-        jax.vmap(advisor_action, in_axes=(0, None))(obs, arena_advisor(envs.make_env("training")))
-    )
-    actor = make_actor(SMALL)
-    params = init_actor(actor, jax.random.PRNGKey(15))
-    opt_state = optax.adam(1e-3).init(params)
-    step = jax.jit(imitation_step, static_argnums=0)
-    held_out = lambda p: float(
-        jnp.mean(jnp.sum((actor.apply(p, obs[2000:]) - labels[2000:]) ** 2, -1))
-    )  # noqa: E731
-    before = held_out(params)
-    for _ in range(300):
-        idx = rng.integers(0, 2000, 128)
-        params, opt_state, loss = step(actor.apply, params, opt_state, obs[idx], labels[idx], 1e-3)
-        assert np.isfinite(loss)
-    assert held_out(params) < 0.25 * before
 
 
 # -- bad input ------------------------------------------------------------------------------

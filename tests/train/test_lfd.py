@@ -228,7 +228,7 @@ def test_lfd_config_names_round_trip():
         (lambda: BaselineConfig(bc_steps=-3), "bc_steps must be a positive integer, got -3"),
         (lambda: BaselineConfig(bc_batch=0), "bc_batch must be a positive integer, got 0"),
         (lambda: BaselineConfig(critic_warmup=-1), "critic_warmup must be an integer >= 0"),
-        (lambda: BaselineConfig(kind="mcp"), "unknown baseline kind 'mcp'"),
+        (lambda: BaselineConfig(kind="mbmf"), "unknown baseline kind 'mbmf'"),
         (lambda: dataclasses.replace(TINY_LFD, envs_per_agent=4), "envs_per_agent=4"),
     ],
 )  # fmt: skip
