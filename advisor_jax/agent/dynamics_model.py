@@ -12,7 +12,11 @@ current one plus the de-normalised change (``do_forward_sim`` of ``anagabandi/nn
     f: 22 → 500 → 500 → 20, ReLU, linear head (272,020 parameters; He init, zero biases)
 
     normaliser: mean / std of s, a, Δs over the valid rows of the data (std floored at
-                ``std_floor`` = 1e-6), computed once from the random phase and then frozen
+                ``std_floor`` = 0.01), computed once from the random phase and then frozen.
+                The floor is ours (the source adds 1e-6-scale epsilons): a component that
+                never varied in the random episodes (a zone that never saw an obstacle)
+                would otherwise blow its later inputs up by 10^6 (the model loss reached
+                1e8 in the MCP+MF phase test); 0.01 is 1 % of the components' unit ranges
     fit step:   B ~ U{0, …, count − 1}^n  (the replay buffer's valid slots)
                 x ← x + N(0, σ_noise²)     (input noise in normalised units, σ_noise = 0.01)
                 L = mean_{i,j} (f(x_i)_j − target_ij)²;  Adam(lr) on L
@@ -127,7 +131,7 @@ def _masked_mean_std(x: jax.Array, mask: jax.Array, count: jax.Array, floor: flo
     return mean, jnp.maximum(jnp.sqrt(var), floor)
 
 
-def normalizer_from_data(data: Any, count: jax.Array | int, std_floor: float = 1e-6) -> Normalizer:
+def normalizer_from_data(data: Any, count: jax.Array | int, std_floor: float = 0.01) -> Normalizer:
     """Mean / std of s, a and Δs over the first ``count`` rows of ``data``.
 
     ``data``: anything with ``obs`` [N, 20], ``action`` [N, 2] and ``next_obs`` [N, 20]
