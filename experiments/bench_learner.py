@@ -38,6 +38,11 @@ def dense_macs(sizes: list[tuple[int, int]]) -> int:
     return sum(i * o for i, o in sizes)
 
 
+# --small: tiny networks for a CPU smoke run (AgentConfig overrides).
+SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
+             buffer_size=4096, batch_size=128)  # fmt: skip
+
+
 def analytic_flops_per_update(cfg) -> float:
     """FLOPs of one update per batch sample: forward = 2·MACs, backward ≈ 2 × forward."""
     h = cfg.actor_hidden
@@ -181,11 +186,7 @@ def main() -> None:
                         help="also time the pieces of an update at this many agents")  # fmt: skip
     args = parser.parse_args()
 
-    overrides = {}
-    if args.small:
-        overrides = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
-                         buffer_size=4096, batch_size=128)  # fmt: skip
-    cfg = parse_agent(args.agent, **overrides)
+    cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
     where = common.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")

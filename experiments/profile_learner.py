@@ -35,7 +35,7 @@ from pathlib import Path
 
 import common
 import jax
-from bench_learner import fill_replay, make_update_loop
+from bench_learner import SMALL, fill_replay, make_update_loop
 
 from advisor_jax.agent.config import parse_agent
 from advisor_jax.fileio import atomic_write_json
@@ -267,11 +267,7 @@ def main() -> None:
     parser.add_argument("--keep-trace", action="store_true",
                         help="also write the first size's trace and HLO (gzipped)")  # fmt: skip
     args = parser.parse_args()
-    overrides = {}
-    if args.small:
-        overrides = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
-                         buffer_size=4096, batch_size=128)  # fmt: skip
-    cfg = parse_agent(args.agent, **overrides)
+    cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
     command = common.command_line("experiments/profile_learner.py", sys.argv[1:])
     if args.attribute:
         trace_file, hlo_file = args.attribute

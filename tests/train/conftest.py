@@ -51,6 +51,17 @@ def run_chunks(init_fn, chunk_fn, key, hp, n_chunks=N_CHUNKS, state=None, first=
     return state
 
 
+def run_chunks_with_metrics(chunk_fn, state, hp, chunk_steps, first, last):
+    """Chunks ``first`` .. ``last - 1`` from ``state``: (final state, the chunks' metrics
+    concatenated along the step axis), both as numpy."""
+    out = []
+    for c in range(first, last):
+        state, metrics = chunk_fn(state, hp, jnp.int32(c * chunk_steps))
+        out.append(jax.device_get(metrics))
+    merged = {k: np.concatenate([np.asarray(m[k]) for m in out], axis=1) for k in out[0]}
+    return jax.device_get(state), merged
+
+
 @pytest.fixture(scope="session")
 def tiny_functions():
     """(trainer, jit(vmap(init)), jit(vmap(chunk))) of TINY, compiled once per session."""

@@ -29,7 +29,7 @@ from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from tests.compare import assert_same_agent
-from tests.train.conftest import agent_slice
+from tests.train.conftest import agent_slice, run_chunks_with_metrics
 
 BC_STEPS, WARMUP = 30, 10
 TINY_LFD = TrainConfig(
@@ -62,12 +62,7 @@ def lfd_functions():
 
 def _run(init_fn, chunk_fn, keys, hp, n_chunks=N_CHUNKS, state=None, first=0):
     state = init_fn(keys) if state is None else state
-    phases = []
-    for c in range(first, n_chunks):
-        state, metrics = chunk_fn(state, hp, jnp.int32(c * TINY_LFD.chunk_steps))
-        phases.append(jax.device_get(metrics))
-    merged = {k: np.concatenate([np.asarray(m[k]) for m in phases], axis=1) for k in phases[0]}
-    return jax.device_get(state), merged
+    return run_chunks_with_metrics(chunk_fn, state, hp, TINY_LFD.chunk_steps, first, n_chunks)
 
 
 @pytest.fixture(scope="module")

@@ -30,7 +30,7 @@ from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.run_directory import load_actor
 from tests.compare import assert_same_agent
-from tests.train.conftest import agent_slice
+from tests.train.conftest import agent_slice, run_chunks_with_metrics
 
 MODEL_STEPS, BC_STEPS, WARMUP, MPC_ROUNDS, DAGGER_ROUNDS = 30, 20, 10, 2, 1
 TINY_MCP = TrainConfig(
@@ -77,12 +77,7 @@ def mcp_functions():
 
 
 def _run(chunk_fn, state, hp, first=0, last=N_CHUNKS):
-    out = []
-    for c in range(first, last):
-        state, metrics = chunk_fn(state, hp, jnp.int32(c * TINY_MCP.chunk_steps))
-        out.append(jax.device_get(metrics))
-    merged = {k: np.concatenate([np.asarray(m[k]) for m in out], axis=1) for k in out[0]}
-    return jax.device_get(state), merged
+    return run_chunks_with_metrics(chunk_fn, state, hp, TINY_MCP.chunk_steps, first, last)
 
 
 @pytest.fixture(scope="module")
