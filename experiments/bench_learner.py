@@ -13,13 +13,23 @@ analytic count (printed side by side).
     python experiments/bench_learner.py --small --agents 1 4 # CPU smoke run
 
 Writes ``results/bench_learner.md`` and ``results/bench_learner.json`` (``--out``).
+
+``--reference TREE`` also runs the benchmark of another checkout (e.g. the commit before a
+speed change: ``git worktree add /tmp/ref HEAD~1``, or on the device an untracked copy of
+it, which the ``run`` tool carries) in a subprocess of the same command, with the same
+options, and reports both side by side: the previous numbers always come from the same
+machine and the same minute as the new ones.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import os
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import common
@@ -160,6 +170,25 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     return rows
 
 
+def run_reference(tree: Path, argv: list[str]) -> dict:
+    """``experiments/bench_learner.py`` of the checkout ``tree``, run with ``argv`` (its own
+    --out added) in a subprocess whose imports resolve to ``tree``; returns its JSON."""
+    script = tree / "experiments" / "bench_learner.py"
+    if not script.exists():
+        raise SystemExit(f"--reference {tree}: no experiments/bench_learner.py there")
+    here = str(Path(__file__).resolve().parents[1])
+    paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    paths = [str(tree.resolve())] + [p for p in paths if Path(p).resolve() != Path(here)]
+    with tempfile.TemporaryDirectory() as out:
+        subprocess.run(
+            [sys.executable, str(script), *argv, "--out", out],
+            check=True,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
+            cwd=script.parent,
+        )
+        return json.loads((Path(out) / "bench_learner.json").read_text())
+
+
 def fill_replay(capacity: int, key) -> object:
     k1, k2, k3 = jax.random.split(key, 3)
     data = Transition(
@@ -184,7 +213,15 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--breakdown", type=int, default=0, metavar="AGENTS",
                         help="also time the pieces of an update at this many agents")  # fmt: skip
+    parser.add_argument("--reference", type=Path, metavar="TREE",
+                        help="also run this checkout's benchmark and compare")  # fmt: skip
     args = parser.parse_args()
+    reference = None
+    if args.reference:
+        argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
+                "--updates", str(args.updates), *(["--small"] if args.small else [])]  # fmt: skip
+        print(f"reference: {args.reference}")
+        reference = run_reference(args.reference, argv)
 
     cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
     where = common.provenance()
@@ -212,7 +249,8 @@ def main() -> None:
         row = dict(agents=n_agents, agent_updates_per_s=ups, updates_per_s_per_agent=ups / n_agents,
                    tflops=tflops, pct_ceiling=100 * tflops / ceiling_tflops,
                    flops_per_update_analytic=analytic, flops_per_update_xla=xla_flops,
-                   seconds_per_call=best, first_call_s=first)  # fmt: skip
+                   seconds_per_call=best, first_call_s=first,
+                   precision="fp32 (JAX's default matmul precision)")  # fmt: skip
         rows.append(row)
         print(
             f"agents {n_agents:4d}: {ups:10.0f} agent-updates/s  {tflops:7.2f} TFLOP/s "
@@ -225,6 +263,8 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, copy_gbs=copy_gbs, rows=rows,
+        reference=None if reference is None else dict(tree=str(args.reference),
+                                                      rows=reference["rows"]),
     )  # fmt: skip
     atomic_write_json(args.out / "bench_learner.json", result)
     table = common.markdown_table(
@@ -250,6 +290,27 @@ def main() -> None:
         "TFLOP/s uses the analytic count. XLA's count leaves out work done in library calls "
         "(cuBLAS GEMMs) and so changes with the kernels the autotuner picks; it is a lower bound.",
     ]
+    if reference is not None:
+        before = {r["agents"]: r["agent_updates_per_s"] for r in reference["rows"]}
+        lines += [
+            "",
+            f"Against `{args.reference}` (run in the same command, same options):",
+            "",
+            *common.markdown_table(
+                ("agents", "reference agent-updates/s", "this tree", "speed-up"),
+                [
+                    (
+                        r["agents"],
+                        before[r["agents"]],
+                        r["agent_updates_per_s"],
+                        r["agent_updates_per_s"] / before[r["agents"]],
+                    )
+                    for r in rows
+                ],
+                formats=("", ",.0f", ",.0f", ".2f"),
+                align="r",
+            ),  # fmt: skip
+        ]
     if pieces:
         per_update = 1e6 / rows[-1]["agent_updates_per_s"]
         lines += [
