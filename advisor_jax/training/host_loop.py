@@ -161,6 +161,7 @@ def _train_locked(
         host = real(state)  # every process takes part in the gather; process 0 writes
         if writer:
             checkpoint.save_step(out_dir / "checkpoints", step, host)
+        return host
 
     padded_hp = shard(pad(hp, placement), placement)
 
@@ -249,12 +250,10 @@ def _train_locked(
                 if checkpoint_every and chunks % checkpoint_every == 0:
                     save_checkpoint(state)
     except KeyboardInterrupt as e:
-        save_checkpoint(state)
+        host = save_checkpoint(state)  # gathered by every process, as `real` requires
         summary.update(status="interrupted", env_steps_per_agent=step)
         if writer:
-            _write_episode_metrics(
-                out_dir, real(state), hp, n_total, log_path, agents, trainer.schedule
-            )
+            _write_episode_metrics(out_dir, host, hp, n_total, log_path, agents, trainer.schedule)
             atomic_write_json(run_file, summary)
         what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
         console.print(
