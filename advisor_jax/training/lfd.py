@@ -57,11 +57,11 @@ def lfd_schedule(cfg: TrainConfig, learner, actor) -> Schedule:
 
     phases = [
         Phase("demo", episodes="demo_episodes", act=demonstrate),
-        Phase("imitate", steps=settings.bc_steps, update=imitate),
+        Phase("imitate", steps=settings.bc_steps, update=imitate, gated=True),
     ]
     if settings.critic_warmup:
         warmup = warm_critic(cfg, learner)
-        phases.append(Phase("warmup", steps=settings.critic_warmup, update=warmup))
+        phases.append(Phase("warmup", steps=settings.critic_warmup, update=warmup, gated=True))
     return Schedule(phases=tuple(phases), init=lambda learner_state, key: imitation_init(
         learner_state.actor))  # fmt: skip
 

@@ -20,10 +20,10 @@ agent's phase at each scan step is a pure function of its own counters::
 Counts of episodes are ``HParams`` (sweepable in one compile: they are only compared with
 N); offline step counts are static. Under ``vmap`` the phase is batched, so ``lax.switch``
 computes every phase's body at every step and selects: an agent's results do not depend
-on its neighbours (vmapped = alone), but a step costs the sum of the bodies. For LfD that
-is one imitation step (an actor forward/backward) and one critic step beside the RL update.
-A heavy body (MCP+MF's MPC, K·H model calls; its model and actor fits) would be paid on
-every step of every agent, so a schedule can *gate* it: a ``Phase(gated=True)``'s update and
+on its neighbours (vmapped = alone), but a step costs the sum of the bodies: for LfD one
+imitation step (an actor forward/backward) and one critic step beside the RL update, for
+MCP+MF the MPC (K·H model calls) and the model and actor fits. Paid on every step of every
+agent for the whole run, so a schedule *gates* them: a ``Phase(gated=True)``'s update and
 the schedule's ``precompute`` (work shared by several collect phases, MCP+MF's MPC action)
 run under ``lax.cond`` on a flag that is the same for all agents of the population
 (``chunk_gate``: "some live agent is, at the start of this chunk, in phase i or an earlier
@@ -31,8 +31,8 @@ one", computed outside the ``vmap`` from every agent's phase), so under ``vmap``
 stays a real branch and a population past those phases skips them. Phases only advance, so
 an agent in phase p at a chunk's start can reach, during the chunk, phases >= p only: the
 flag is on whenever an agent may need the body, and since an unselected branch's output is
-discarded, gating never changes an agent's results. A schedule without gated phases (LfD)
-compiles as before.
+discarded, gating never changes an agent's results. LfD gates ``imitate`` and ``warmup``;
+MCP+MF its fits and, through ``precompute``, the MPC.
 
 To add a baseline: write its ``Phase``s (a controller for each collect phase, an update for
 each offline phase), the extra per-agent state its phases need (``Schedule.init``), and
@@ -276,7 +276,7 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
 def _branch_table(schedule: Schedule, phase: jax.Array, keys: list) -> tuple[jax.Array, list]:
     """(branch index, unique keys): a gated schedule (MCP+MF) compiles each distinct body
     once, however many rounds repeat it (``keys``: one per phase, RL last, compared by
-    identity); an ungated one (LfD) keeps one branch per phase, as it was built."""
+    identity); an ungated one keeps one branch per phase, as it was built."""
     if not schedule.gated:
         return phase, keys
     unique = []

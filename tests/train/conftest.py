@@ -51,6 +51,19 @@ def run_chunks(init_fn, chunk_fn, key, hp, n_chunks=N_CHUNKS, state=None, first=
     return state
 
 
+def primitive_names(jaxpr, found=None) -> list[str]:
+    """Every primitive of a jaxpr, sub-jaxprs (scan, cond branches, ...) included."""
+    found = [] if found is None else found
+    for eqn in jaxpr.eqns:
+        found.append(eqn.primitive.name)
+        for value in eqn.params.values():
+            for sub in value if isinstance(value, tuple | list) else [value]:
+                inner = getattr(sub, "jaxpr", sub)
+                if hasattr(inner, "eqns"):
+                    primitive_names(inner, found)
+    return found
+
+
 def run_chunks_with_metrics(chunk_fn, state, hp, chunk_steps, first, last):
     """Chunks ``first`` .. ``last - 1`` from ``state``: (final state, the chunks' metrics
     concatenated along the step axis), both as numpy."""

@@ -29,7 +29,7 @@ from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from tests.compare import assert_same_agent
-from tests.train.conftest import agent_slice, run_chunks_with_metrics
+from tests.train.conftest import agent_slice, primitive_names, run_chunks_with_metrics
 
 BC_STEPS, WARMUP = 30, 10
 TINY_LFD = TrainConfig(
@@ -73,6 +73,16 @@ def lfd_population(lfd_functions):
     keys = agent_keys([a["seed"] for a in agents])
     state, metrics = _run(init_fn, chunk_fn, keys, hp)
     return state, metrics, hp, agents
+
+
+def test_imitation_and_warmup_are_real_branches(lfd_population, lfd_functions):
+    """The two offline bodies are gated ``cond``s, not batched selects: once every agent is
+    in RL, a step no longer pays an imitation step and a critic step beside its update."""
+    _, _, hp, agents = lfd_population
+    _, init_fn, chunk_fn = lfd_functions
+    state = jax.eval_shape(init_fn, agent_keys([a["seed"] for a in agents]))
+    jaxpr = chunk_fn.trace(state, hp, jnp.int32(0)).jaxpr  # cached: no new compile
+    assert primitive_names(jaxpr.jaxpr).count("cond") == 2
 
 
 def test_phases_follow_the_schedule(lfd_population, lfd_functions):

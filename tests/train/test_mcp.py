@@ -30,7 +30,7 @@ from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.run_directory import load_actor
 from tests.compare import assert_same_agent
-from tests.train.conftest import agent_slice, run_chunks_with_metrics
+from tests.train.conftest import agent_slice, primitive_names, run_chunks_with_metrics
 
 MODEL_STEPS, BC_STEPS, WARMUP, MPC_ROUNDS, DAGGER_ROUNDS = 30, 20, 10, 2, 1
 TINY_MCP = TrainConfig(
@@ -228,17 +228,6 @@ def test_mcp_run_directory(mcp_functions, tmp_path):
     assert not (tmp_path / "bad").exists(), "checked before anything is written"
 
 
-def _primitives(jaxpr, found):
-    for eqn in jaxpr.eqns:
-        found.append(eqn.primitive.name)
-        for value in eqn.params.values():
-            for sub in value if isinstance(value, tuple | list) else [value]:
-                inner = getattr(sub, "jaxpr", sub)
-                if hasattr(inner, "eqns"):
-                    _primitives(inner, found)
-    return found
-
-
 def test_heavy_bodies_are_real_branches(mcp_population, mcp_functions):
     """In the population's program the MPC plan and the four gated offline bodies
     (normalise, fit_model, fit_actor, warmup) are ``cond``s, not batched selects: each is
@@ -247,7 +236,7 @@ def test_heavy_bodies_are_real_branches(mcp_population, mcp_functions):
     _, init_fn, chunk_fn = mcp_functions
     state = jax.eval_shape(init_fn, agent_keys([a["seed"] for a in agents]))
     jaxpr = chunk_fn.trace(state, hp, jnp.int32(0)).jaxpr  # cached: no new compile
-    assert _primitives(jaxpr.jaxpr, []).count("cond") == 5
+    assert primitive_names(jaxpr.jaxpr).count("cond") == 5
 
 
 def test_chunk_gate():
