@@ -47,9 +47,15 @@ import envs
 from advisor_jax import __version__
 from advisor_jax.agent.baselines import check_baseline_hparams
 from advisor_jax.agent.config import HParams, TrainConfig
-from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training import checkpoint, phases, plots, reporting, run_directory, runlock
+from advisor_jax.training import (
+    checkpoint,
+    phases,
+    reporting,
+    run_directory,
+    run_outputs,
+    runlock,
+)
 from advisor_jax.training.devices import (
     Placement,
     freeze_padding,
@@ -253,7 +259,7 @@ def _train_locked(
         host = save_checkpoint(state)  # gathered by every process, as `real` requires
         summary.update(status="interrupted", env_steps_per_agent=step)
         if writer:
-            _write_episode_metrics(out_dir, host, hp, n_total, log_path, agents, trainer.schedule)
+            run_outputs.write_episode_metrics(out_dir, host, hp, agents, trainer.schedule)
             atomic_write_json(run_file, summary)
         what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
         console.print(
@@ -267,40 +273,11 @@ def _train_locked(
     if not writer:
         return summary
 
-    checkpoint.save_tree(out_dir / "params", _final_params(state))
-    metrics, series = _write_episode_metrics(
-        out_dir, state, hp, n_total, log_path, agents, trainer.schedule
-    )
-    evaluation = {}
-    if eval_episodes:
-        evaluators = {
-            arena: population_evaluator(
-                arena, eval_episodes, cfg.agent.actor_hidden, cfg.max_episode_steps
-            )
-            for arena in eval_arenas
-        }
-        evaluation = evaluate_population(
-            evaluators,
-            state.learner.actor,
-            key=seed_key((10_000 + int(eval_from)) % (SEED_MAX + 1)),
-            diverged=np.asarray(state.diverged),
-        )
-        atomic_write_json(out_dir / "eval.json", evaluation)
-    plots.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
-    plots.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
-
-    diverged = np.asarray(state.diverged)
-    summary.update(
-        status="finished",
-        train_seconds=round(train_seconds, 2),
-        env_steps_per_agent=[int(s) for s in np.asarray(state.env_steps)],
-        episodes_completed=[int(e) for e in np.minimum(np.asarray(state.episodes), n_total)],
-        diverged=[int(i) for i in np.flatnonzero(diverged)],
-        evaluation=evaluation,
-    )
-    atomic_write_json(run_file, summary)
-    reporting.print_summary(console, summary, metrics, grid)
-    return summary
+    return run_outputs.finish_run(
+        out_dir, state, hp, cfg, agents, grid, summary, console, trainer.schedule,
+        train_seconds=train_seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
+        eval_key=seed_key((10_000 + int(eval_from)) % (SEED_MAX + 1)),
+    )  # fmt: skip
 
 
 def population_functions(cfg: TrainConfig, placement: Placement | None = None):
@@ -313,7 +290,7 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
     of one config keep and reuse them."""
     trainer = make_train(cfg)
     init, chunk = jax.vmap(trainer.init), jax.vmap(trainer.chunk, in_axes=(0, 0, None))
-    if trainer.schedule is not None and trainer.schedule.gated:  # MCP+MF
+    if trainer.schedule is not None and trainer.schedule.gated:  # LfD, MCP+MF
         vmapped, schedule = jax.vmap(trainer.chunk, in_axes=(0, 0, None, None)), trainer.schedule
 
         def chunk(state, hp, first_step):  # the flags from every agent: unbatched (phases)
@@ -331,33 +308,3 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
         donate_argnums=0,
     )
     return trainer, init_fn, chunk_fn
-
-
-def _write_episode_metrics(out_dir, state, hp, n_total, log_path, agents, schedule=None):
-    """metrics.npz and episodes.csv of the episodes played so far (an interrupted run's too:
-    its analysis need not wait for --resume); returns (metrics, per-chunk log series). A
-    baseline's episodes carry their phase (``phase``: index into ``phase_names``)."""
-    metrics = reporting.episode_metrics(state, hp, n_total)
-    phase_names = None
-    if schedule is not None:
-        metrics["phase"] = phases.episode_phases(schedule, hp, n_total)
-        phase_names = schedule.names
-    series = reporting.read_training_log(log_path, len(agents))
-    metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
-    reporting.write_metrics(out_dir, metrics, agents, phase_names)
-    return metrics, series
-
-
-def _final_params(state) -> dict:
-    learner = state.learner
-    params = {
-        "actor": learner.actor,
-        "critic": learner.critic,
-        "target_actor": learner.target_actor,
-        "target_critic": learner.target_critic,
-    }
-    model = getattr(getattr(state.prior, "data", None), "model", None)
-    if model is not None:  # MCP+MF: the dynamics model's weights and normaliser
-        params["model"] = model.params
-        params["model_norm"] = model.norm
-    return params

@@ -1,0 +1,83 @@
+"""What a finished run writes (``host_loop.run_training``'s last part), and the episode
+metrics an interrupted run writes too: params/, metrics.npz, episodes.csv, eval.json,
+learning_curve.png, diagnostics.png and run.json's final summary."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training import checkpoint, phases, plots, reporting
+
+
+def write_episode_metrics(out_dir, state, hp, agents, schedule=None):
+    """metrics.npz and episodes.csv of the episodes played so far (an interrupted run's too:
+    its analysis need not wait for --resume); returns (metrics, per-chunk log series). A
+    baseline's episodes carry their phase (``phase``: index into ``phase_names``)."""
+    n_total = np.asarray(state.log.outcome).shape[-1]
+    metrics = reporting.episode_metrics(state, hp, n_total)
+    phase_names = None
+    if schedule is not None:
+        metrics["phase"] = phases.episode_phases(schedule, hp, n_total)
+        phase_names = schedule.names
+    series = reporting.read_training_log(out_dir / "train_log.jsonl", len(agents))
+    metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
+    reporting.write_metrics(out_dir, metrics, agents, phase_names)
+    return metrics, series
+
+
+def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, schedule, *,
+               train_seconds, eval_episodes, eval_arenas, eval_key) -> dict:  # fmt: skip
+    """Final parameters, metrics, evaluation, figures and the summary (process 0, host
+    state of the real agents); returns the summary written to run.json."""
+    n_total = cfg.episodes
+    run_file = out_dir / "run.json"
+    checkpoint.save_tree(out_dir / "params", final_params(state))
+    metrics, series = write_episode_metrics(out_dir, state, hp, agents, schedule)
+    evaluation = {}
+    if eval_episodes:
+        evaluators = {
+            arena: population_evaluator(
+                arena, eval_episodes, cfg.agent.actor_hidden, cfg.max_episode_steps
+            )
+            for arena in eval_arenas
+        }
+        evaluation = evaluate_population(
+            evaluators,
+            state.learner.actor,
+            key=eval_key,
+            diverged=np.asarray(state.diverged),
+        )
+        atomic_write_json(out_dir / "eval.json", evaluation)
+    plots.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
+    plots.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
+
+    diverged = np.asarray(state.diverged)
+    summary.update(
+        status="finished",
+        train_seconds=round(train_seconds, 2),
+        env_steps_per_agent=[int(s) for s in np.asarray(state.env_steps)],
+        episodes_completed=[int(e) for e in np.minimum(np.asarray(state.episodes), n_total)],
+        diverged=[int(i) for i in np.flatnonzero(diverged)],
+        evaluation=evaluation,
+    )
+    atomic_write_json(run_file, summary)
+    reporting.print_summary(console, summary, metrics, grid)
+    return summary
+
+
+def final_params(state) -> dict:
+    """The trained networks of every agent (leading axis), as params/ holds them."""
+    learner = state.learner
+    params = {
+        "actor": learner.actor,
+        "critic": learner.critic,
+        "target_actor": learner.target_actor,
+        "target_critic": learner.target_critic,
+    }
+    model = getattr(getattr(state.prior, "data", None), "model", None)
+    if model is not None:  # MCP+MF: the dynamics model's weights and normaliser
+        params["model"] = model.params
+        params["model_norm"] = model.norm
+    return params
