@@ -72,7 +72,6 @@ import dataclasses
 import itertools
 import json
 import math
-import shutil
 import signal
 import sys
 from pathlib import Path
@@ -424,7 +423,7 @@ def train(args) -> None:
                 deadline.piece = None
             print(f"  {how}: {run_dir}", file=sys.stderr)
             if args.export:
-                _export(run_dir, args.export / piece.name)
+                common.export_small_files(run_dir, args.export / piece.name)
     left = [(i, common.run_status(args.runs / p.name)) for i, p in selected]
     left = [(i, status) for i, status in left if status != "finished"]
     if deadline.passed and left:
@@ -436,14 +435,6 @@ def train(args) -> None:
             file=sys.stderr,
         )
         sys.exit(STOPPED)
-
-
-def _export(run_dir: Path, dest: Path) -> None:
-    """The small files of a finished piece (no checkpoints/, no params/) into ``dest``."""
-    dest.mkdir(parents=True, exist_ok=True)
-    for name in common.SMALL_RUN_FILES:
-        if (run_dir / name).is_file():
-            shutil.copy2(run_dir / name, dest / name)
 
 
 # -- summarize ------------------------------------------------------------------------------

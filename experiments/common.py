@@ -23,6 +23,7 @@ import math
 import os
 import platform
 import shlex
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -243,6 +244,14 @@ def write_markdown(path: str | os.PathLike, lines: Sequence[str], echo: bool = F
 SMALL_RUN_FILES = ("run.json", "eval.json", "metrics.npz", "train_log.jsonl", "episodes.csv")
 """What a summary reads from a run directory: the files worth copying off a GPU machine
 (never ``checkpoints/`` or ``params/``, which hold every agent's replay buffer and weights)."""
+
+
+def export_small_files(run_dir: Path, dest: Path) -> None:
+    """``SMALL_RUN_FILES`` of ``run_dir`` (those it has) into ``dest``."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for name in SMALL_RUN_FILES:
+        if (run_dir / name).is_file():
+            shutil.copy2(run_dir / name, dest / name)
 
 
 def hp_overrides(items: Sequence[str]) -> dict[str, float]:

@@ -56,8 +56,9 @@ def train(args) -> None:
     for agent in args.agents:
         cfg, hp = preset(args.preset, agent)
         cfg = dataclasses.replace(cfg, episodes=args.episodes or cfg.episodes)
+        run_dir = args.runs / agent.replace("+", "_")
         how = common.train_or_resume(
-            args.runs / agent.replace("+", "_"),
+            run_dir,
             cfg,
             dataclasses.replace(hp, **overrides),
             {},
@@ -69,6 +70,8 @@ def train(args) -> None:
             meta={"preset": args.preset, "table1": {"hp": overrides, "command": command}},
         )
         print(f"{agent}: {how}", file=sys.stderr)
+        if args.export:
+            common.export_small_files(run_dir, args.export / run_dir.name)
 
 
 def _fmt(mean: float, half: float) -> str:
@@ -280,6 +283,8 @@ def main() -> None:
     t.add_argument("--seeds", type=int, default=6)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--eval-episodes", type=int, default=100)
+    t.add_argument("--export", type=Path, default=None,
+                   help="copy each type's small files to EXPORT/<type>/")  # fmt: skip
     t.add_argument(
         "--hp",
         action="append",

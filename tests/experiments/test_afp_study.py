@@ -16,6 +16,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
 
 import afp_study  # noqa: E402
+import common  # noqa: E402
 import table1  # noqa: E402
 
 from advisor_jax.agent.config import HPARAM_NAMES, preset  # noqa: E402
@@ -184,3 +185,17 @@ def test_table1_json_schema(tmp_path):
     assert set(row["settings"]) - {"preset", "episodes"} <= set(HPARAM_NAMES)
     text = (out / "table1.md").read_text()
     assert "beta=1, beta_normalize=1" in text and "the preset's hyperparameters" in text
+
+
+def test_export_copies_only_the_small_files(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints" / "40").mkdir(parents=True)
+    (run / "params").mkdir()
+    for name in ("run.json", "eval.json", "metrics.npz", "learning_curve.png"):
+        (run / name).write_text(name)
+    common.export_small_files(run, tmp_path / "out" / "run")
+    assert sorted(p.name for p in (tmp_path / "out" / "run").iterdir()) == [
+        "eval.json",
+        "metrics.npz",
+        "run.json",
+    ]
