@@ -104,7 +104,7 @@ def group_key(row: dict) -> tuple:
 
 def label(key: tuple) -> str:
     agent, beta, norm, clip = key
-    if agent.endswith("+AfD") or "+AfP" not in agent and "AfDP" not in agent:
+    if not agent.endswith(("+AfP", "+AfDP")):  # no AfP: β only sets ADDPG's step scale
         return f"{agent} (β={beta:g}, literal)"
     mode = "scale-free" if norm else "literal"
     return f"{agent} β={beta:g} {mode}{', clipped' if clip else ''}"
