@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import os
 import subprocess
@@ -42,6 +43,12 @@ from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
+
+DTYPES = {"fp32": "float32", "bf16": "bfloat16"}
+PRECISION_LABELS = {
+    "fp32": "fp32 (JAX's default matmul precision)",
+    "bf16": "bf16 hidden layers (fp32 parameters, Adam, accumulation)",
+}
 
 
 def dense_macs(sizes: list[tuple[int, int]]) -> int:
@@ -126,11 +133,11 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     """Seconds per agent-iteration of each piece of an update, vmapped over ``n_agents``."""
     import optax
 
-    from advisor_jax.agent.networks import Critic, apply_critics
+    from advisor_jax.agent.networks import apply_critics, make_critic
 
     learner = make_learner(cfg)
     hp = HParams()
-    critic = Critic(state_hidden=cfg.critic_state_hidden, hidden=cfg.critic_hidden)
+    critic = make_critic(cfg, cfg.precision)
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
     states = jax.jit(jax.vmap(learner.init))(keys)
     replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
@@ -173,12 +180,13 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
 def run_reference(tree: Path, argv: list[str]) -> dict:
     """``experiments/bench_learner.py`` of the checkout ``tree``, run with ``argv`` (its own
     --out added) in a subprocess whose imports resolve to ``tree``; returns its JSON."""
+    tree = tree.resolve()  # the subprocess runs in tree/experiments: a relative tree breaks
     script = tree / "experiments" / "bench_learner.py"
     if not script.exists():
         raise SystemExit(f"--reference {tree}: no experiments/bench_learner.py there")
     here = str(Path(__file__).resolve().parents[1])
     paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    paths = [str(tree.resolve())] + [p for p in paths if Path(p).resolve() != Path(here)]
+    paths = [str(tree)] + [p for p in paths if Path(p).resolve() != Path(here)]
     with tempfile.TemporaryDirectory() as out:
         subprocess.run(
             [sys.executable, str(script), *argv, "--out", out],
@@ -213,6 +221,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--breakdown", type=int, default=0, metavar="AGENTS",
                         help="also time the pieces of an update at this many agents")  # fmt: skip
+    parser.add_argument("--precision", nargs="+", default=["fp32"], choices=["fp32", "bf16"],
+                        help="learner precisions to time (AgentConfig.precision)")  # fmt: skip
     parser.add_argument("--reference", type=Path, metavar="TREE",
                         help="also run this checkout's benchmark and compare")  # fmt: skip
     args = parser.parse_args()
@@ -227,33 +237,36 @@ def main() -> None:
     where = common.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
-    ceiling_tflops = common.matmul_ceiling(2048 if args.small else 8192) / 1e12
+    size = 2048 if args.small else 8192
+    ceilings = {p: common.matmul_ceiling(size, dtype=DTYPES[p]) / 1e12 for p in args.precision}
+    ceiling_tflops = ceilings.get("fp32") or common.matmul_ceiling(size) / 1e12
     copy_gbs = common.copy_ceiling((64 if args.small else 2048) * 2**20) / 1e9
-    print(f"ceiling: fp32 matmul {ceiling_tflops:.1f} TFLOP/s, copy {copy_gbs:.0f} GB/s")
+    print(f"ceilings: matmul {ceilings} TFLOP/s, copy {copy_gbs:.0f} GB/s")
     analytic = analytic_flops_per_update(cfg) * cfg.batch_size
 
     rows = []
-    for n_agents in args.agents:
+    for precision, n_agents in itertools.product(args.precision, args.agents):
+        cfg = dataclasses.replace(cfg, precision=precision)
         learner, loop = make_update_loop(cfg, args.updates)
         keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
         states = jax.jit(jax.vmap(learner.init))(keys)
         replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
             cfg.buffer_size, keys
         )
-        if not rows:
+        if not rows or rows[-1]["precision"] != PRECISION_LABELS[precision]:
             one_replay = jax.tree_util.tree_map(lambda x: x[0], replays)
             xla_flops = xla_flops_per_update(cfg, learner, one_replay)
         first, best = time_update_loop(loop, states, replays, keys)
         ups = n_agents * args.updates / best
         tflops = ups * analytic / 1e12
         row = dict(agents=n_agents, agent_updates_per_s=ups, updates_per_s_per_agent=ups / n_agents,
-                   tflops=tflops, pct_ceiling=100 * tflops / ceiling_tflops,
+                   tflops=tflops, pct_ceiling=100 * tflops / ceilings[precision],
                    flops_per_update_analytic=analytic, flops_per_update_xla=xla_flops,
                    seconds_per_call=best, first_call_s=first,
-                   precision="fp32 (JAX's default matmul precision)")  # fmt: skip
+                   precision=PRECISION_LABELS[precision])  # fmt: skip
         rows.append(row)
         print(
-            f"agents {n_agents:4d}: {ups:10.0f} agent-updates/s  {tflops:7.2f} TFLOP/s "
+            f"{precision} agents {n_agents:4d}: {ups:10.0f} agent-updates/s  {tflops:7.2f} TFLOP/s "
             f"({row['pct_ceiling']:.1f} % of matmul)  GFLOP/update analytic {analytic / 1e9:.2f} "
             f"xla {xla_flops / 1e9:.2f}"
         )
@@ -262,17 +275,18 @@ def main() -> None:
     result = dict(
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
-        matmul_ceiling_tflops=ceiling_tflops, copy_gbs=copy_gbs, rows=rows,
+        matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
+        rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
     )  # fmt: skip
     atomic_write_json(args.out / "bench_learner.json", result)
     table = common.markdown_table(
-        ("agents", "agent-updates/s", "TFLOP/s", "% of matmul ceiling",
+        ("precision", "agents", "agent-updates/s", "TFLOP/s", "% of its matmul ceiling",
          "GFLOP/update (analytic)", "GFLOP/update (XLA)"),
-        [(r["agents"], r["agent_updates_per_s"], r["tflops"], r["pct_ceiling"],
+        [(r["precision"], r["agents"], r["agent_updates_per_s"], r["tflops"], r["pct_ceiling"],
           r["flops_per_update_analytic"] / 1e9, r["flops_per_update_xla"] / 1e9) for r in rows],
-        formats=("", ",.0f", ".2f", ".1f", ".2f", ".2f"),
+        formats=("", "", ",.0f", ".2f", ".1f", ".2f", ".2f"),
         align="r",
     )  # fmt: skip
     lines = [
@@ -282,8 +296,9 @@ def main() -> None:
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
         "updates per jitted call (replay sampling + critic step + delayed actor step).",
         "",
-        f"Device: {device}, {result['date']}. Ceilings measured in the same process: fp32 matmul "
-        f"(default precision) {ceiling_tflops:.1f} TFLOP/s, device copy {copy_gbs:.0f} GB/s.",
+        f"Device: {device}, {result['date']}. Ceilings measured in the same process: "
+        + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
+        + f" (fp32 at JAX's default precision), device copy {copy_gbs:.0f} GB/s.",
         "",
         *table,
         "",
@@ -294,12 +309,13 @@ def main() -> None:
         before = {r["agents"]: r["agent_updates_per_s"] for r in reference["rows"]}
         lines += [
             "",
-            f"Against `{args.reference}` (run in the same command, same options):",
+            f"Against `{args.reference}` (run in the same command, same options, fp32):",
             "",
             *common.markdown_table(
-                ("agents", "reference agent-updates/s", "this tree", "speed-up"),
+                ("precision", "agents", "reference agent-updates/s", "this tree", "speed-up"),
                 [
                     (
+                        r["precision"],
                         r["agents"],
                         before[r["agents"]],
                         r["agent_updates_per_s"],
@@ -307,7 +323,7 @@ def main() -> None:
                     )
                     for r in rows
                 ],
-                formats=("", ",.0f", ",.0f", ".2f"),
+                formats=("", "", ",.0f", ",.0f", ".2f"),
                 align="r",
             ),  # fmt: skip
         ]

@@ -34,10 +34,10 @@ from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
 
 
-def bench(args: argparse.Namespace, n: int, devices: int) -> dict:
-    """Agent env-steps/s of ``n`` agents on ``devices`` devices: best of ``args.repeats``
-    chunks after a warm-up."""
-    cfg, hp = preset(args.preset, args.agent)
+def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32") -> dict:
+    """Agent env-steps/s of ``n`` agents on ``devices`` devices with the learner at
+    ``precision``: best of ``args.repeats`` chunks after a warm-up."""
+    cfg, hp = preset(args.preset, args.agent, precision=precision)
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
     placement = place(n, devices)
@@ -62,7 +62,12 @@ def bench(args: argparse.Namespace, n: int, devices: int) -> dict:
     best = common.best_of(chunk, args.repeats)
     sps = n * args.chunk * cfg.envs_per_agent / best
     return dict(
-        agents=n, devices=devices, agent_steps_per_s=sps, seconds_per_chunk=best, warmup_s=warmup
+        agents=n,
+        devices=devices,
+        precision=precision,
+        agent_steps_per_s=sps,
+        seconds_per_chunk=best,
+        warmup_s=warmup,
     )
 
 
@@ -80,6 +85,13 @@ def main() -> None:
         default=[1],
         help="device counts to time each population on (default 1)",
     )
+    parser.add_argument(
+        "--precision",
+        nargs="+",
+        default=["fp32"],
+        choices=["fp32", "bf16"],
+        help="learner precisions to time (AgentConfig.precision; default fp32)",
+    )
     parser.add_argument("--name", default="bench_train", help="report file name")
     parser.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()
@@ -88,15 +100,19 @@ def main() -> None:
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
     rows = []
-    for n in args.agents:
-        for d in args.devices:
-            rows.append(bench(args, n, d))
-            base = next(r for r in rows if r["agents"] == n)  # the first device count
-            rows[-1]["speedup"] = rows[-1]["agent_steps_per_s"] / base["agent_steps_per_s"]
-            print(
-                f"agents {n:4d} on {d} device(s): {rows[-1]['agent_steps_per_s']:10.0f} agent "
-                f"env-steps/s (x{rows[-1]['speedup']:.2f}), warm-up {rows[-1]['warmup_s']:.1f} s"
-            )
+    for precision in args.precision:
+        for n in args.agents:
+            for d in args.devices:
+                rows.append(bench(args, n, d, precision))
+                base = next(  # the first device count, same population and precision
+                    r for r in rows if r["agents"] == n and r["precision"] == precision
+                )
+                rows[-1]["speedup"] = rows[-1]["agent_steps_per_s"] / base["agent_steps_per_s"]
+                print(
+                    f"{precision} agents {n:4d} on {d} device(s): "
+                    f"{rows[-1]['agent_steps_per_s']:10.0f} agent env-steps/s "
+                    f"(x{rows[-1]['speedup']:.2f}), warm-up {rows[-1]['warmup_s']:.1f} s"
+                )
 
     result = dict(**where, preset=args.preset, agent=args.agent, chunk=args.chunk, rows=rows)
     atomic_write_json(args.out / f"{args.name}.json", result)
@@ -107,9 +123,10 @@ def main() -> None:
         f"{device}, {result['date']}.",
         "",
         *common.markdown_table(
-            ("agents", "devices", "agent env-steps/s", "speed-up", "s per chunk"),
+            ("precision", "agents", "devices", "agent env-steps/s", "speed-up", "s per chunk"),
             [
                 (
+                    r["precision"],
                     r["agents"],
                     r["devices"],
                     r["agent_steps_per_s"],
@@ -118,9 +135,11 @@ def main() -> None:
                 )
                 for r in rows
             ],
-            formats=("", "", ",.0f", ".2f", ".3f"),
+            formats=("", "", "", ",.0f", ".2f", ".3f"),
             align="r",
         ),
+        "",
+        "Speed-up: over the first device count, same population and precision.",
         "",
         f"Command: `{common.command_line('experiments/bench_train.py', sys.argv[1:])}`",
     ]

@@ -148,12 +148,13 @@ def per_call_us(
 # -- ceilings: what the device can do at all, measured in the same process as the timings ---
 
 
-def matmul_ceiling(n: int, repeats: int = 5) -> float:
-    """FLOP/s of an ``n``×``n`` fp32 matmul at JAX's default precision (TF32 on recent
-    NVIDIA GPUs): the rate a dense network could reach on this device, this run."""
+def matmul_ceiling(n: int, repeats: int = 5, dtype: str = "float32") -> float:
+    """FLOP/s of an ``n``×``n`` matmul, fp32 at JAX's default precision (TF32 on recent
+    NVIDIA GPUs) or ``dtype="bfloat16"``: the rate a dense network could reach on this
+    device, this run."""
     import jax
 
-    a = jax.random.normal(jax.random.PRNGKey(0), (n, n))
+    a = jax.random.normal(jax.random.PRNGKey(0), (n, n)).astype(dtype)
     matmul = jax.jit(lambda p, q: p @ q)
     return 2 * n**3 / first_and_best(lambda: matmul(a, a), repeats)[1]
 

@@ -256,6 +256,8 @@ def main() -> None:
     parser.add_argument("--agents", type=int, nargs="+", default=[128, 1])
     parser.add_argument("--updates", type=int, default=20, help="updates in the traced call")
     parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
+    parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
+                        help="the learner's precision (AgentConfig.precision)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument(
         "--attribute",
@@ -267,7 +269,7 @@ def main() -> None:
     parser.add_argument("--keep-trace", action="store_true",
                         help="also write the first size's trace and HLO (gzipped)")  # fmt: skip
     args = parser.parse_args()
-    cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
+    cfg = parse_agent(args.agent, precision=args.precision, **(SMALL if args.small else {}))
     command = common.command_line("experiments/profile_learner.py", sys.argv[1:])
     if args.attribute:
         trace_file, hlo_file = args.attribute
@@ -312,7 +314,8 @@ def main() -> None:
         "# Where an update's time goes",
         "",
         f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
-        f"{cfg.critic_state_hidden}+{cfg.critic_hidden}; `Learner.update` × {args.updates} "
+        f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, precision {cfg.precision}; "
+        f"`Learner.update` × {args.updates} "
         "in one jitted scan, traced with `jax.profiler`.",
         "",
         f"Device: {where['device']} ({where['backend']}), jax {where['jax']}, {where['date']}. "

@@ -37,6 +37,7 @@ from advisor_jax.agent.baselines import (
 
 Algo = Literal["ddpg", "addpg", "td3", "atd3"]
 ALGOS: tuple[str, ...] = ("ddpg", "addpg", "td3", "atd3")
+PRECISION_NAMES: tuple[str, ...] = ("fp32", "bf16")
 
 
 def _positive(name: str, value: int) -> None:
@@ -71,6 +72,12 @@ class AgentConfig:
     Ignored (taken as 1) for ddpg / addpg."""
     learning_starts: int = 0
     """Transitions in the buffer before the first update; 0 means the batch size."""
+    precision: Literal["fp32", "bf16"] = "fp32"
+    """Compute precision of the learner's hidden layers (``networks.PRECISIONS``): fp32, or
+    bf16 matmul inputs and activations with fp32 parameters, gradients, Adam state and
+    GEMM accumulation (issue 17's mixed-precision option). Acting (data collection,
+    evaluation, export) is always fp32. fp32 is the default until ≥ 16 seeds show bf16
+    learns the same (results/precision_study.md)."""
     baseline: BaselineConfig | None = None
     """A Table 1 baseline (LfD, MCP+MF): prior-knowledge phases before the RL learner ``algo``
     (ddpg or td3, no advisor switches); None for the paper's agents."""
@@ -86,6 +93,10 @@ class AgentConfig:
             raise ValueError(
                 f"advisor_policy (AfP) needs the Eq. 2 actor target of addpg/atd3, "
                 f"not algo={self.algo!r}"
+            )
+        if self.precision not in PRECISION_NAMES:
+            raise ValueError(
+                f"unknown precision {self.precision!r}; choose one of {', '.join(PRECISION_NAMES)}"
             )
         _positive("batch_size", self.batch_size)
         _positive("buffer_size", self.buffer_size)

@@ -66,7 +66,13 @@ from flax import struct
 
 from advisor_jax.agent.config import AgentConfig, HParams
 from advisor_jax.agent.diagnostics import actor_diagnostics
-from advisor_jax.agent.networks import Critic, apply_critics, init_actor, init_critics, make_actor
+from advisor_jax.agent.networks import (
+    apply_critics,
+    init_actor,
+    init_critics,
+    make_actor,
+    make_critic,
+)
 from advisor_jax.agent.replay_buffer import ReplayState, Transition, replay_sample
 from advisor_jax.agent.update_rules import (
     addpg_actor_targets,
@@ -125,8 +131,9 @@ def make_learner(cfg: AgentConfig) -> Learner:
     """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able)."""
     if not isinstance(cfg, AgentConfig):
         raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")
-    actor = make_actor(cfg.actor_hidden)
-    critic = Critic(state_hidden=cfg.critic_state_hidden, hidden=tuple(cfg.critic_hidden))
+    actor = make_actor(cfg.actor_hidden, cfg.precision)
+    critic = make_critic(cfg, cfg.precision)
+    critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)
@@ -147,7 +154,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
         )
 
     def q_select(critic_params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
-        return jnp.min(apply_critics(critic, critic_params, obs, action), axis=0)
+        return jnp.min(apply_critics(critic_fp32, critic_params, obs, action), axis=0)
 
     def critic_step(
         state: LearnerState, batch: Transition, key: jax.Array, hp: HParams

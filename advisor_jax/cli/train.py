@@ -70,6 +70,11 @@ class TrainArgs:
     """Gradient updates per environment step (default 1)."""
     max_episode_steps: int | None = None
     """h_max override (default: the arena's, 300 or 150 for physical)."""
+    precision: Literal["fp32", "bf16"] = "fp32"
+    """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
+    activations with fp32 parameters, Adam and accumulation (faster on GPUs with bf16
+    tensor cores; acting is always fp32). See results/precision_study.md before relying
+    on bf16."""
     batch_size: int | None = None
     """Minibatch size override."""
     buffer_size: int | None = None
@@ -126,6 +131,8 @@ def build_run(args: TrainArgs):
         for k, v in (("batch_size", args.batch_size), ("buffer_size", args.buffer_size))
         if v is not None
     }
+    if args.precision != "fp32":
+        agent_overrides["precision"] = args.precision
     kind = BASELINE_AGENTS.get(args.agent.strip().lower().replace(" ", ""))
     settings = parse_baseline_settings(args.baseline, kind, args.agent)
     cfg, base_hp = preset(args.preset, args.agent, baseline=settings, **agent_overrides)

@@ -68,11 +68,10 @@ from advisor_jax.training.devices import (
     unpad,
 )
 from advisor_jax.training.population import (
-    SEED_MAX,
     agent_keys,
     build_population,
     check_seed,
-    seed_key,
+    eval_key,
 )
 from advisor_jax.training.train import make_train
 
@@ -237,8 +236,9 @@ def _train_locked(
     try:
         with reporting.training_progress(console, n_agents * n_total, disable=not progress) as bar:
             while step < trainer.max_steps:
-                state, metrics = chunk_fn(state, padded_hp, jnp.int32(step))
-                step += cfg.chunk_steps
+                with runlock.interrupts_deferred():  # the call donates `state`
+                    state, metrics = chunk_fn(state, padded_hp, jnp.int32(step))
+                    step += cfg.chunk_steps
                 chunks += 1
                 metrics = real(metrics)
                 episodes = np.minimum(real(state.episodes), n_total)
@@ -276,7 +276,7 @@ def _train_locked(
     return run_outputs.finish_run(
         out_dir, state, hp, cfg, agents, grid, summary, console, trainer.schedule,
         train_seconds=train_seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
-        eval_key=seed_key((10_000 + int(eval_from)) % (SEED_MAX + 1)),
+        eval_key=eval_key(eval_from),
     )  # fmt: skip
 
 

@@ -104,6 +104,12 @@ def seed_key(seed: int) -> jax.Array:
     return jnp.asarray(np.array([seed >> 32, seed & 0xFFFFFFFF], dtype=np.uint32))
 
 
+def eval_key(eval_seed: int) -> jax.Array:
+    """The key of a run's evaluation episodes (run.json ``eval_seed``): the key of seed
+    10,000 + ``eval_seed`` (mod 2^64), so evaluation episodes are not a training seed's."""
+    return seed_key((10_000 + check_seed(eval_seed, "eval_seed")) % (SEED_MAX + 1))
+
+
 def agent_keys(seeds: Sequence[int]) -> jax.Array:
     """One PRNG key per agent, from its seed alone (so a vmapped agent equals a lone run)."""
     return jnp.stack([seed_key(s) for s in seeds])

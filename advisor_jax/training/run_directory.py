@@ -45,6 +45,44 @@ def load_actor(run_dir: str | Path, index: int) -> tuple[TrainConfig, dict, dict
     return cfg, agents[index], actor
 
 
+def reevaluate(
+    run_dir: str | Path,
+    eval_seed: int,
+    episodes: int,
+    arenas: tuple[str, ...] = (),
+    evaluators: dict | None = None,
+) -> dict:
+    """Every agent of a finished run evaluated on the episodes of ``eval_seed``: what
+    eval.json would hold had the run been given ``--eval-seed eval_seed``. Runs trained
+    apart can so be compared on the same episodes after the fact (pooled seeds, or a
+    paired comparison of one seed under two settings).
+
+    Args:
+      arenas: default: the arenas of the run's own evaluation (training and validation if
+        it had none).
+      evaluators: ``{arena: population_evaluator(...)}`` already compiled (else built here).
+    """
+    from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
+    from advisor_jax.training.population import eval_key
+
+    run_dir = Path(run_dir)
+    cfg, summary = load_run(run_dir)
+    if summary.get("status") != "finished":
+        raise ValueError(f"{run_dir} has status {summary.get('status')!r}: no final parameters")
+    if episodes <= 0:
+        raise ValueError(f"episodes must be a positive integer, got {episodes}")
+    key = eval_key(eval_seed)
+    arenas = tuple(arenas) or tuple(summary.get("evaluation") or ("training", "validation"))
+    evaluators = evaluators or {
+        arena: population_evaluator(arena, episodes, cfg.agent.actor_hidden, cfg.max_episode_steps)
+        for arena in arenas
+    }
+    actor = checkpoint.load_tree(run_dir / "params")["actor"]
+    diverged = np.zeros(len(summary["agents"]), bool)
+    diverged[summary.get("diverged", [])] = True
+    return evaluate_population(evaluators, actor, key, diverged)
+
+
 def differences(saved, current, path: str = "") -> list[str]:
     """Where two JSON values differ: 'config.episodes: run.json has 60, these options give
     25', one entry per differing leaf (the first 5, then a count)."""

@@ -104,3 +104,35 @@ def sigterm_as_interrupt():
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """Holds SIGINT and SIGTERM back until the block ends, then raises what came.
+
+    The jitted training chunk donates its input state: once called, the old state's
+    buffers are gone. A Ctrl-C or SIGTERM that lands between the call taking them and
+    returning the new state (during a compile, or while the dispatch waits for a full
+    queue) would leave the run with no state to checkpoint ("Array has been deleted",
+    seen on an H100 on 2026-11-23). Inside this block such a signal is only noted; at the
+    end the handler that was in force (KeyboardInterrupt, ``Interrupted``) runs, when the
+    new state is in hand. Elsewhere than the main thread signals keep their handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in signals}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if caught:
+        handler = previous[caught[0]]
+        if callable(handler):
+            handler(caught[0], None)
+        elif handler == signal.SIG_DFL:  # default action (SIGINT's is KeyboardInterrupt)
+            if caught[0] == signal.SIGINT:
+                raise KeyboardInterrupt
+            signal.raise_signal(caught[0])

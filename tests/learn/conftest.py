@@ -85,12 +85,18 @@ def random_batch() -> Callable[[int, int], Transition]:
 # Numpy reference networks ----------------------------------------------------------------
 
 
+def _kernel(layer) -> np.ndarray:
+    """A layer's [in, out] kernel; the critic's join layer keeps its state and action row
+    blocks apart (``networks.JoinDense``): stacked, they are the concatenated layer's."""
+    k = layer["kernel"]
+    if isinstance(k, dict):
+        k = np.concatenate([np.asarray(k["state"]), np.asarray(k["action"])], axis=0)
+    return np.asarray(k, np.float64)
+
+
 def _layers(params, names):
     p = params["params"]
-    return [
-        (np.asarray(p[n]["kernel"], np.float64), np.asarray(p[n]["bias"], np.float64))
-        for n in names
-    ]
+    return [(_kernel(p[n]), np.asarray(p[n]["bias"], np.float64)) for n in names]
 
 
 def _hidden_names(params) -> list[str]:

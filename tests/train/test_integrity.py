@@ -196,6 +196,37 @@ def test_sigterm_saves_a_checkpoint_and_resume_finishes_the_run(
     _assert_same_params(out, straight_run)
 
 
+def test_a_signal_inside_the_donating_chunk_call_still_saves_a_checkpoint(tmp_path, tiny_functions):
+    # The chunk donates its input state; a signal landing after the call took it and before
+    # the new state came back left nothing to save ("Array has been deleted", H100 run).
+    trainer, init_fn, chunk_fn = tiny_functions
+    calls = []
+
+    def chunk_then_signal(state, hp, step):
+        new = chunk_fn(state, hp, step)  # `state` is donated from here on
+        if not calls:
+            os.kill(os.getpid(), signal.SIGTERM)
+        calls.append(step)
+        return new
+
+    out = tmp_path / "run"
+    with pytest.raises(Interrupted):
+        train_tiny(out, (trainer, init_fn, chunk_then_signal))
+    assert len(calls) == 1
+    saved = json.loads((out / "run.json").read_text())
+    assert saved["status"] == "interrupted" and saved["env_steps_per_agent"] == TINY.chunk_steps
+    assert checkpoint.verify_checksums(out / "checkpoints" / str(TINY.chunk_steps))
+
+
+def test_interrupts_deferred_holds_a_signal_until_the_block_ends():
+    ran_on = []
+    with pytest.raises(KeyboardInterrupt), runlock.interrupts_deferred():
+        os.kill(os.getpid(), signal.SIGINT)
+        ran_on.append(True)  # the signal did not stop the block
+    assert ran_on == [True]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_resume_of_a_run_killed_before_its_first_checkpoint_starts_afresh(
     straight_run, tmp_path, monkeypatch, capsys, tiny_functions
 ):
@@ -292,6 +323,8 @@ def test_seed_keys_do_not_alias_and_keep_the_normal_range():
     np.testing.assert_array_equal(agent_keys([2**40]), [[256, 0]])
     cfg, _, _, seeds, _ = build_run(TrainArgs(seed=2**63, seeds=2))
     assert seeds == [2**63, 2**63 + 1]
+    assert cfg.agent.precision == "fp32"  # the default; --precision bf16 reaches the agent
+    assert build_run(TrainArgs(precision="bf16"))[0].agent.precision == "bf16"
     with pytest.raises(ValueError, match=r"seed 18446744073709551616 is out of range"):
         seed_key(2**64)
 

@@ -181,3 +181,15 @@ def test_corrupt_checkpoint_gives_clear_error(tmp_path):
 def test_bad_configuration_is_named(make, message):
     with pytest.raises(ValueError, match=message):
         make()
+
+
+def test_reevaluate_on_the_runs_own_eval_seed_gives_its_eval_json(finished_run, quick_evaluators):
+    from advisor_jax.training.run_directory import reevaluate
+
+    out, _ = finished_run
+    again = reevaluate(out, 0, EVAL_EPISODES, ("training",), quick_evaluators)
+    assert again == json.loads((out / "eval.json").read_text())
+    other = reevaluate(out, 8, EVAL_EPISODES, ("training",), quick_evaluators)["training"]
+    assert len(other["success"]) == 2 and other["episodes"] == EVAL_EPISODES
+    with pytest.raises(ValueError, match="eval_seed -1"):
+        reevaluate(out, -1, EVAL_EPISODES, ("training",), quick_evaluators)
