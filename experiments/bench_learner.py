@@ -40,11 +40,11 @@ import numpy as np
 
 from advisor_jax.agent.config import HParams, parse_agent
 from advisor_jax.agent.learner import make_learner
+from advisor_jax.agent.networks import PRECISIONS
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
 
-DTYPES = {"fp32": "float32", "bf16": "bfloat16"}
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
     "bf16": "bf16 hidden layers (fp32 parameters, Adam, accumulation)",
@@ -238,7 +238,7 @@ def main() -> None:
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
     size = 2048 if args.small else 8192
-    ceilings = {p: common.matmul_ceiling(size, dtype=DTYPES[p]) / 1e12 for p in args.precision}
+    ceilings = {p: common.matmul_ceiling(size, dtype=PRECISIONS[p]) / 1e12 for p in args.precision}
     ceiling_tflops = ceilings.get("fp32") or common.matmul_ceiling(size) / 1e12
     copy_gbs = common.copy_ceiling((64 if args.small else 2048) * 2**20) / 1e9
     print(f"ceilings: matmul {ceilings} TFLOP/s, copy {copy_gbs:.0f} GB/s")

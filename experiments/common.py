@@ -148,7 +148,7 @@ def per_call_us(
 # -- ceilings: what the device can do at all, measured in the same process as the timings ---
 
 
-def matmul_ceiling(n: int, repeats: int = 5, dtype: str = "float32") -> float:
+def matmul_ceiling(n: int, repeats: int = 5, dtype: Any = "float32") -> float:
     """FLOP/s of an ``n``×``n`` matmul, fp32 at JAX's default precision (TF32 on recent
     NVIDIA GPUs) or ``dtype="bfloat16"``: the rate a dense network could reach on this
     device, this run."""
