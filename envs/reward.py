@@ -52,3 +52,27 @@ def eq8_from_obs(
     shaped = cfg.k_distance * (dist_prev - dist) + cfg.k_proximity * (p_min - p_prev)
     reward = jnp.where(goal, cfg.goal_reward, jnp.where(collision, -cfg.collision_penalty, shaped))
     return reward.astype(jnp.float32), goal, collision
+
+
+def return_bounds(cfg: EnvConfig, gamma: jax.Array | float) -> tuple[jax.Array, jax.Array]:
+    """The smallest interval [lo, hi] that holds every discounted return of Eq. (8).
+
+    For any state and any policy, G = Σ_t γ^t r_t (t from 0, terminal steps end the sum, a
+    timeout bootstraps and so continues it) lies in [lo, hi]::
+
+        hi =  c1 + k1 v_max dt / (1 - γ) + k2 R        lo = -(c2 + k1 v_max dt / (1 - γ) + k2 R)
+
+    * **Terminal reward**: at most one, c1 (goal) or -c2 (collision), weighted by γ^T ≤ 1.
+    * **Distance shaping** k1 (d_{t-1} - d_t): the robot is kinematic, so each step moves it
+      v dt ≤ v_max dt and the goal distance changes by at most that: |Σ| ≤ k1 v_max dt/(1-γ).
+    * **Proximity shaping** k2 (p_t - p_{t-1}) with p ∈ [0, R] (R = max_range): the discounted
+      sum telescopes, Σ_{t<T} γ^t (p_{t+1} - p_t) = -p_0 + Σ_{0<t<T} (γ^{t-1} - γ^t) p_t
+      + γ^{T-1} p_T, whose positive weights sum to 1, so it lies in [-R, R]: |Σ| ≤ k2 R.
+
+    With the paper's settings (c1 = c2 = 10, k1 = k2 = 5, v_max dt = 0.05 m, R = 1 m, γ = 0.9)
+    this is [-17.5, 17.5]. A critic whose mean Q leaves it is overestimating; the learner's
+    ``clip_q_target`` switch clips its TD targets Q̂ into it (docs/architecture.md, R35).
+    ``gamma`` may be traced (a vmapped hyperparameter); γ < 1.
+    """
+    shaping = cfg.k_distance * cfg.v_max * cfg.dt / (1.0 - gamma) + cfg.k_proximity * cfg.max_range
+    return -(cfg.collision_penalty + shaping), cfg.goal_reward + shaping

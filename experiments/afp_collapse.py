@@ -14,11 +14,14 @@ writes them, and ``--export`` of ``afp_study.py`` copies them) and, for every ag
   ``--blowup`` (100) × its median over logged chunks 5-24 (the first chunks are the
   first updates' transient); **Eq. 2 step**: the
   largest batch-mean step length ‖β∇ₐQ‖ (or its scale-free form) in action units, before
-  any clipping of Â (the box is 1 wide for V, 2 for ω).
+  any clipping of Â (the box is 1 wide for V, 2 for ω); **Q above the return bound**: the
+  batch-mean Q(S, A) first exceeds the largest discounted return any policy can collect in
+  the arena (``envs.reward.return_bounds``: 17.5 at the paper's γ = 0.9), so the critic
+  overestimates, and by how much (the largest batch-mean Q).
 
 It then pools agents with the same settings (agent type, β, beta_normalize,
 clip_actor_target) across runs and writes ``afp_collapse.md``, ``.json`` and ``.png``
-(per-seed evaluation success per setting; the saturation and critic-loss series of every
+(per-seed evaluation success per setting; the saturation, critic-loss and Q series of every
 agent, collapsed ones in red) into ``--out``.
 
     python experiments/afp_collapse.py results/afp_collapse/run_data/* --out results
@@ -36,17 +39,34 @@ import numpy as np
 
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.reporting import mean_ci95
+from envs.reward import return_bounds
+from envs.state import EnvConfig
 
 GOAL = 1
 BLOCK = 50  # episodes per training-success block
 SETTLE = 5  # logged chunks (of 1000 steps) before the critic loss's reference window
-SETTINGS = ("beta", "beta_normalize", "clip_actor_target")
+SETTINGS = ("beta", "beta_normalize", "clip_actor_target", "clip_q_target")
 
 
 def first_episode(mask: np.ndarray, episode_at_chunk: np.ndarray) -> int | None:
     """Training episode at the first chunk where ``mask`` holds (None if never)."""
     hits = np.flatnonzero(mask)
     return int(episode_at_chunk[hits[0]]) if hits.size else None
+
+
+def collapse_episode(blocks: list[float]) -> int | None:
+    """First training episode of a 50-episode block below 25 % success after the agent had
+    reached 25 % in an earlier block (a slow start is not a collapse); None if none."""
+    for b, success in enumerate(blocks):
+        if success < 0.25 and max(blocks[:b], default=0.0) >= 0.25:
+            return BLOCK * b
+    return None
+
+
+def uses_eq2(agent: str) -> bool:
+    """ADDPG / ATD3 regress the actor on Eq. 2's Â; DDPG / TD3 (and the baselines) follow
+    the DPG, for which saturated heads are where Q is highest, not a failure."""
+    return agent.startswith(("ADDPG", "ATD3"))
 
 
 def analyse_run(run_dir: Path, args) -> list[dict]:
@@ -63,6 +83,8 @@ def analyse_run(run_dir: Path, args) -> list[dict]:
         saturated = metrics["log/diag/saturated"][i]
         critic = metrics["log/loss/critic"][i]
         step = metrics["log/diag/step"][i]
+        q = metrics["log/q/mean"][i] if "log/q/mean" in metrics else np.full(critic.shape, np.nan)
+        q_bound = float(return_bounds(EnvConfig(), float(agent.get("gamma", 0.9)))[1])
         window = critic[SETTLE : SETTLE + 20]  # after the first updates' transient
         early = np.nanmedian(window) if np.isfinite(window).any() else np.nan
         late = np.arange(critic.size) >= SETTLE
@@ -74,7 +96,7 @@ def analyse_run(run_dir: Path, args) -> list[dict]:
                 run=run_dir.name,
                 agent=run["agent"],
                 seed=int(agent["seed"]),
-                **{k: float(agent[k]) for k in SETTINGS},
+                **{k: float(agent.get(k, 0.0)) for k in SETTINGS},  # older runs: no clip_q
                 blocks=blocks,
                 last_block=blocks[-1],
                 eval_training=eval_train,
@@ -87,11 +109,16 @@ def analyse_run(run_dir: Path, args) -> list[dict]:
                 ),
                 max_critic_ratio=float(np.nanmax(critic) / early) if np.isfinite(early) else None,
                 max_step=float(np.nanmax(step)) if np.isfinite(step).any() else None,
-                collapse_at=next((BLOCK * b for b, s in enumerate(blocks) if s < 0.25), None),
+                q_bound=q_bound,
+                max_q=float(np.nanmax(q)) if np.isfinite(q).any() else None,
+                q_over_bound_at=first_episode(q > q_bound, episode_at_chunk),
+                collapse_at=collapse_episode(blocks),
+                preset=run.get("preset", "paper"),
                 device=run.get("device"),
                 created=run.get("created"),
                 _saturated=saturated,
                 _critic=critic / early if np.isfinite(early) else critic,
+                _q=q,
                 _episode=episode_at_chunk,
             )
         )
@@ -103,11 +130,12 @@ def group_key(row: dict) -> tuple:
 
 
 def label(key: tuple) -> str:
-    agent, beta, norm, clip = key
-    if not agent.endswith(("+AfP", "+AfDP")):  # no AfP: β only sets ADDPG's step scale
-        return f"{agent} (β={beta:g}, literal)"
+    agent, beta, norm, clip, clip_q = key
+    q = ", Q̂ clipped" if clip_q else ""
+    if not uses_eq2(agent):  # the DPG actor: β unused
+        return f"{agent}{' (Q̂ clipped)' if clip_q else ''}"
     mode = "scale-free" if norm else "literal"
-    return f"{agent} β={beta:g} {mode}{', clipped' if clip else ''}"
+    return f"{agent} β={beta:g} {mode}{', Â clipped' if clip else ''}{q}"
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -134,6 +162,7 @@ def summarise(rows: list[dict]) -> list[dict]:
                 collapsed=sum(m["collapsed"] for m in members),
                 saturated=sum(m["saturation_at"] is not None for m in members),
                 critic_blowup=sum(m["critic_blowup_at"] is not None for m in members),
+                q_over_bound=sum(m["q_over_bound_at"] is not None for m in members),
             )
         )
     return out
@@ -145,7 +174,7 @@ def plot(path: Path, rows: list[dict], summary: list[dict]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(17, 5.5))
+    fig, axes = plt.subplots(1, 4, figsize=(22, 5.5))
     ax = axes[0]
     for g, s in enumerate(summary):
         members = [r for r in rows if label(group_key(r)) == s["setting"]]
@@ -166,6 +195,7 @@ def plot(path: Path, rows: list[dict], summary: list[dict]) -> None:
     for ax, name, title in (
         (axes[1], "_saturated", "actor heads saturated (share)"),
         (axes[2], "_critic", "critic loss / its early median (log)"),
+        (axes[3], "_q", "batch-mean Q(S, A) (symlog); dashed: the return bound"),
     ):
         for r in rows:
             colour, alpha = ("tab:red", 0.9) if r["collapsed"] else ("tab:blue", 0.25)
@@ -173,6 +203,9 @@ def plot(path: Path, rows: list[dict], summary: list[dict]) -> None:
         ax.set_xlabel("training episode")
         ax.set_title(title)
     axes[2].set_yscale("log")
+    axes[3].set_yscale("symlog", linthresh=1.0)
+    for bound in sorted({r["q_bound"] for r in rows}):
+        axes[3].axhline(bound, color="grey", ls="--", lw=1)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -216,12 +249,14 @@ def main() -> None:
 
     devices = sorted({f"{r['device']}" for r in rows})
     dates = sorted({(r["created"] or "")[:10] for r in rows})
+    presets = sorted({r["preset"] for r in rows})
     lines = [
         "# Why seeds collapse (issue 16, item 2)",
         "",
         f"Runs: {', '.join(f'`{p.name}`' for p in args.runs)}; trained on {', '.join(devices)} "
-        f"on {', '.join(dates)} (each run's `command.json` holds its command). Paper preset, "
-        "500 episodes, evaluation on 50 episodes per arena with the deterministic actor. "
+        f"on {', '.join(dates)} (each run's `command.json` holds its command). Preset "
+        f"{', '.join(f'`{p}`' for p in presets)} (the settings that differ are in each row's "
+        "name), evaluation with the deterministic actor. "
         f"Collapsed: evaluation success in the training arena below {args.advisor_level:g} "
         "(the advisor's own level).",
         "",
@@ -237,6 +272,7 @@ def main() -> None:
                 "collapsed",
                 f"saturated ≥ {args.saturated:g}",
                 f"critic loss > {args.blowup:g}× early",
+                "Q above the return bound",
             ),
             [
                 (
@@ -248,13 +284,18 @@ def main() -> None:
                     s["collapsed"],
                     s["saturated"],
                     s["critic_blowup"],
+                    s["q_over_bound"],
                 )
                 for s in summary
             ],
             formats=("", "d", "", "", "", "d"),
         ),  # fmt: skip
         "",
-        "## Every agent that collapsed or saturated",
+        "## Every agent that collapsed, saturated, blew up or overestimated",
+        "",
+        "(Saturation is listed for the Eq. 2 agents only: the DPG drives DDPG's heads to the "
+        "bounds where Q is highest. A collapse starts at the first 50-episode block below "
+        "25 % success after one at or above it.)",
         "",
         *common.markdown_table(
             (
@@ -265,6 +306,8 @@ def main() -> None:
                 "saturated from ep.",
                 "critic blow-up from ep.",
                 "max Eq. 2 step (before clipping)",
+                "Q above the bound from ep.",
+                "largest batch-mean Q",
                 "collapse from ep.",
             ),
             [
@@ -276,12 +319,15 @@ def main() -> None:
                     r["saturation_at"] if r["saturation_at"] is not None else "–",
                     r["critic_blowup_at"] if r["critic_blowup_at"] is not None else "–",
                     f"{r['max_step']:.2f}" if r["max_step"] is not None else "–",
+                    r["q_over_bound_at"] if r["q_over_bound_at"] is not None else "–",
+                    f"{r['max_q']:.1f}" if r["max_q"] is not None else "–",
                     r["collapse_at"] if r["collapse_at"] is not None else "–",
                 )
                 for r in rows
                 if r["collapsed"]
-                or r["saturation_at"] is not None
+                or (r["saturation_at"] is not None and uses_eq2(r["agent"]))
                 or r["critic_blowup_at"] is not None
+                or r["q_over_bound_at"] is not None
             ],
             formats=("", "d", ""),
         ),  # fmt: skip

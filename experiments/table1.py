@@ -30,7 +30,7 @@ from pathlib import Path
 import common
 import numpy as np
 
-from advisor_jax.agent.config import PAPER_AGENTS, preset
+from advisor_jax.agent.config import PAPER_AGENTS, PRESETS, preset
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.plots import save_png
 from advisor_jax.training.reporting import mean_ci95, moving_average
@@ -45,6 +45,17 @@ PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
 }
 ORDER = (*PAPER_AGENTS, "TD3", "ATD3", "ATD3+AfD")
 ARENAS = ("training", "validation")
+ADVISOR_LEVEL = 0.5  # the advisor's own success (results/advisor.md): a seed below it collapsed
+# The paper's claims as (better, worse) pairs: its Table 1 ordering, adjacent rows, then the
+# effect of the advisor in policy updating (AfP) over the same agent without it.
+PAPER_ORDERING = (
+    ("ATD3+AfDP", "ADDPG+AfDP"),
+    ("ADDPG+AfDP", "ADDPG+AfP"),
+    ("ADDPG+AfP", "ADDPG+AfD"),
+    ("ADDPG+AfD", "ADDPG"),
+    ("ADDPG", "DDPG"),
+)
+AFP_EFFECTS = (("ADDPG+AfP", "ADDPG"), ("ADDPG+AfDP", "ADDPG+AfD"), ("ATD3+AfDP", "ATD3+AfD"))
 
 
 def train(args) -> None:
@@ -93,7 +104,17 @@ def load_table(root: Path) -> list[dict]:
         if any(s != settings[0] for s in settings):
             sys.exit(f"{run_dir}: its agents differ in more than the seed; not a Table 1 row")
         ev = summary["evaluation"]
-        success = {a: [v for v in ev[a]["success"] if v is not None] for a in ARENAS if a in ev}
+        seeds = [row["seed"] for row in summary["agents"]]
+        by_seed = {
+            a: {s: v for s, v in zip(seeds, ev[a]["success"], strict=True) if v is not None}
+            for a in ARENAS
+            if a in ev
+        }
+        success = {a: list(values.values()) for a, values in by_seed.items()}
+        command_file = run_dir / "command.json"  # written beside runs made on the device tool
+        command = (summary.get("table1") or {}).get("command") or (
+            json.loads(command_file.read_text()).get("command") if command_file.exists() else None
+        )
         rows.append(
             {
                 "agent": agent,
@@ -101,6 +122,8 @@ def load_table(root: Path) -> list[dict]:
                 "summary": summary,
                 "settings": settings[0],
                 "success": success,
+                "by_seed": by_seed,
+                "command": command,
                 "rank": ORDER.index(agent) if agent in ORDER else len(ORDER),
             }
         )
@@ -109,9 +132,73 @@ def load_table(root: Path) -> list[dict]:
 
 def _settings_text(settings: dict) -> str:
     hp = ", ".join(f"{k}={v:g}" for k, v in settings.items() if k not in ("preset", "episodes"))
-    return f"preset `{settings['preset']}`, {settings['episodes']} episodes" + (
-        f", {hp}" if hp else ", the preset's hyperparameters (the paper's Eq. 2)"
+    own = ", ".join(f"{k}={v:g}" for k, v in PRESETS[settings["preset"]][2].items())
+    readings = {"beta_normalize", "clip_actor_target", "clip_q_target"}
+    literal = not readings & (set(PRESETS[settings["preset"]][2]) | set(settings))
+    return (
+        f"preset `{settings['preset']}`"
+        + (f" ({own})" if own else "")
+        + f", {settings['episodes']} episodes"
+        + (f", {hp}" if hp else ", the preset's hyperparameters")
+        + (" (the paper's Eq. 2 as printed)" if literal else "")
     )
+
+
+def paired_difference(better: dict, worse: dict, arena: str) -> dict | None:
+    """``better`` − ``worse`` in success points, seed by seed (the same seed starts from the
+    same networks and every row is scored on the same episodes), with its Student-t 95 %
+    interval and a verdict: ``holds`` (interval above 0), ``reversed`` (below 0) or ``not
+    resolved``. None if the rows share fewer than two seeds."""
+    a, b = better["by_seed"].get(arena, {}), worse["by_seed"].get(arena, {})
+    seeds = sorted(set(a) & set(b))
+    if len(seeds) < 2:
+        return None
+    mean, half = mean_ci95([100 * (a[s] - b[s]) for s in seeds])
+    verdict = "not resolved"
+    if np.isfinite(half) and mean - half > 0:
+        verdict = "holds"
+    elif np.isfinite(half) and mean + half < 0:
+        verdict = "reversed"
+    return {"seeds": len(seeds), "mean": mean, "half": half, "verdict": verdict}
+
+
+def comparisons(rows: list[dict]) -> list[dict]:
+    """The paper's ordering and the AfP effects that these rows can test, both arenas."""
+    by_agent = {r["agent"]: r for r in rows}
+    out = []
+    for kind, pairs in (("ordering", PAPER_ORDERING), ("AfP effect", AFP_EFFECTS)):
+        for better, worse in pairs:
+            if better in by_agent and worse in by_agent:
+                diffs = {a: paired_difference(by_agent[better], by_agent[worse], a) for a in ARENAS}
+                if any(diffs.values()):
+                    out.append({"kind": kind, "better": better, "worse": worse, **diffs})
+    return out
+
+
+def _comparison_lines(rows: list[dict]) -> list[str]:
+    found = comparisons(rows)
+    if not found:
+        return []
+
+    def cell(d):
+        return "–" if d is None else f"{_fmt(d['mean'], d['half'])} ({d['verdict']})"
+
+    table = [
+        (c["kind"], f"{c['better']} > {c['worse']}", c["training"]["seeds"] if c["training"]
+         else "–", cell(c["training"]), cell(c["validation"]))
+        for c in found
+    ]  # fmt: skip
+    return [
+        "Which of the paper's claims hold here: the difference in success points, seed by "
+        "seed, mean ± 95 % CI; `holds` when the interval lies above 0, `reversed` below 0.",
+        "",
+        *common.markdown_table(
+            ["claim", "paper", "paired seeds", "training env", "validation env"],
+            table,
+            align="llrrr",
+        ),
+        "",
+    ]
 
 
 def _table_lines(rows: list[dict], root: Path) -> list[str]:
@@ -129,11 +216,13 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
         speed = [v for v in ev["training"]["collision_speed"] if v is not None]
         paper = PAPER_TABLE1.get(r["agent"])
         diverged = len(r["summary"].get("diverged", []))
+        below = sum(v < ADVISOR_LEVEL for v in r["success"].get("training", []))
         table.append(
             (
                 r["agent"],
                 f"{len(r['summary']['agents'])}" + (f" ({diverged} diverged)" if diverged else ""),
                 *cells,
+                f"{below}",
                 _fmt(*mean_ci95(speed)) if speed else "–",
                 f"{paper[0]:.1f} / {paper[1]:.1f}" if paper else "–",
                 _settings_text(r["settings"]) if len(distinct) > 1 else "",
@@ -144,6 +233,7 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
         "seeds",
         "training env",
         "validation env",
+        f"seeds below {100 * ADVISOR_LEVEL:g} %",
         "collision speed, eval (m/s)",
         "paper (train / val)",
         "settings",
@@ -159,8 +249,9 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
         f"{first['evaluation']['training']['episodes']} episodes per arena, the same episodes "
         "for every agent type. Mean ± 95 % CI over seeds (%).",
         "",
-        *common.markdown_table(header, table, align="lrrrrrl"),
+        *common.markdown_table(header, table, align="lrrrrrrl"),
         "",
+        *_comparison_lines(rows),
     ]
 
 
@@ -254,12 +345,7 @@ def summarize(args) -> None:
     ]
     for root, rows in tables:
         lines += _table_lines(rows, root)
-    commands = [
-        c
-        for _, rows in tables
-        for c in dict.fromkeys((r["summary"].get("table1") or {}).get("command") for r in rows)
-        if c
-    ]
+    commands = [c for _, rows in tables for c in dict.fromkeys(r["command"] for r in rows) if c]
     summarize_argv = ["summarize", "--runs", *args.runs, "--out", args.out]
     lines += [
         "![per-seed success and learning curves](table1.png)",

@@ -214,6 +214,8 @@ class HParams:
     target_noise_clip: float = 0.2  # c, Table A4
     beta_normalize: float = 0.0  # 0: Eq. (2)'s step is β∇_aQ (paper); 1: scale-free, β/rms‖∇_aQ‖
     clip_actor_target: float = 0.0  # 0: Â as printed (paper); 1: Â clipped to the action box
+    clip_q_target: float = 0.0  # 0: Q̂ as printed (paper); 1: Q̂ clipped to the arena's return
+    # bounds (envs.reward.return_bounds), against the single critic's overestimation runaway
     demo_episodes: float = 250.0  # D (LfD only): demonstration episodes, counted in N_total
     bc_lr: float = 1e-3  # imitation learning rate (LfD, MCP+MF; mbmf.py's 1e-3)
     random_episodes: float = 50.0  # R (MCP+MF only): uniform-action episodes, in N_total
@@ -242,6 +244,7 @@ _HPARAM_RANGES = {
     "target_noise_clip": (0.0, math.inf, True, False),
     "beta_normalize": (0.0, 1.0, True, True),
     "clip_actor_target": (0.0, 1.0, True, True),
+    "clip_q_target": (0.0, 1.0, True, True),
     "demo_episodes": (1.0, math.inf, True, False),
     "bc_lr": (0.0, math.inf, False, False),
     "random_episodes": (1.0, math.inf, True, False),
@@ -251,7 +254,7 @@ _HPARAM_RANGES = {
     "model_noise": (0.0, math.inf, True, False),
 }
 # Switches: traced like every hyperparameter (one sweep can hold both settings), 0 or 1 only.
-_SWITCHES = ("beta_normalize", "clip_actor_target")
+_SWITCHES = ("beta_normalize", "clip_actor_target", "clip_q_target")
 
 
 def validate_hparams(hp: HParams) -> None:

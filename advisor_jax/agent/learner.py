@@ -10,6 +10,7 @@ same batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3 steps 9-2
         A' = π^T(S')                                    # DDPG / ADDPG, Eq. (4)
         A' = clip(π^T(S') + clip(N(0, σ̄), -c, c), box)  # TD3 / ATD3
         Q̂  = R + γ (1 - terminal) min_k Q_k^T(S', A')   # one critic: min is Q^T
+        Q̂  = clip(Q̂, lo, hi)                            # only with clip_q_target = 1 (R35)
         L_Q = Σ_k (1/n) Σ_i (Q̂_i - Q_k(s_i, a_i))²      # Eq. (5) with Q(S, A), see below
     actor_step(B):                                      # Alg. 2 steps 9-15, Alg. A3 16-22
         DDPG / TD3:   L_π = -(1/n) Σ_i Q_1(s_i, π(s_i))                 # DPG
@@ -48,10 +49,13 @@ DDPG/TD3), ``grad_norm/actor`` and the diagnostics of ``diagnostics.actor_diagno
 non-finite loss, Q or gradient norm marks the agent diverged; a ``diag/`` value may be NaN
 (not defined).
 
-Two readings are selectable per agent, as hyperparameters (0 = the paper, the default):
-``beta_normalize`` makes Eq. (2)'s step scale-free (``update_rules.eq2_step``) and
+Three readings are selectable per agent, as hyperparameters (0 = the paper, the default):
+``beta_normalize`` makes Eq. (2)'s step scale-free (``update_rules.eq2_step``),
 ``clip_actor_target`` clips Â to the action box before AfP compares and the actor regresses
-on it.
+on it, and ``clip_q_target`` clips the TD target Q̂ into the bounds of every achievable
+return, [lo, hi] = ``return_bounds(γ)`` (``envs.reward.return_bounds``, passed to
+``make_learner`` by the trainer; without it the switch has nothing to clip to). The critic
+metrics then include ``q/clipped``, the fraction of the batch's targets the clip changed.
 """
 
 from __future__ import annotations
@@ -76,6 +80,7 @@ from advisor_jax.agent.networks import (
 from advisor_jax.agent.replay_buffer import ReplayState, Transition, replay_sample
 from advisor_jax.agent.update_rules import (
     addpg_actor_targets,
+    bounded_targets,
     critic_losses,
     critic_targets,
     dpg_actor_loss,
@@ -127,8 +132,16 @@ def _first_critic(critic_params: Any) -> Any:
 # The learner ----------------------------------------------------------------------------
 
 
-def make_learner(cfg: AgentConfig) -> Learner:
-    """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able)."""
+def make_learner(
+    cfg: AgentConfig,
+    return_bounds: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None,
+) -> Learner:
+    """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able).
+
+    ``return_bounds``: γ -> (lo, hi), the interval of every achievable discounted return
+    (``functools.partial(envs.reward.return_bounds, env.config)``); the critic clips Q̂ into
+    it for agents with ``clip_q_target`` = 1. None: no clipping whatever the switch says.
+    """
     if not isinstance(cfg, AgentConfig):
         raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")
     actor = make_actor(cfg.actor_hidden, cfg.precision)
@@ -166,6 +179,11 @@ def make_learner(cfg: AgentConfig) -> Learner:
             )
         next_q = apply_critics(critic, state.target_critic, batch.next_obs, next_actions)
         targets = critic_targets(batch.reward, batch.terminal, next_q, hp.gamma)  # [n]
+        clipped = jnp.zeros((), jnp.float32)
+        if return_bounds is not None:
+            bounded = bounded_targets(targets, *return_bounds(hp.gamma), hp.clip_q_target)
+            clipped = jnp.mean((bounded != targets).astype(jnp.float32))
+            targets = bounded
 
         def loss_fn(params):
             q = apply_critics(critic, params, batch.obs, batch.action)  # [n_critics, n]
@@ -183,6 +201,7 @@ def make_learner(cfg: AgentConfig) -> Learner:
             "loss/critic": jnp.mean(losses),
             "q/mean": jnp.mean(q),
             "q/target": jnp.mean(targets),
+            "q/clipped": clipped,
             "grad_norm/critic": optax.global_norm(grads),
         }
         return new_state, metrics

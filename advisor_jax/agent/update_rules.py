@@ -52,6 +52,18 @@ def critic_targets(
     return reward + gamma * (1.0 - terminal) * jnp.min(next_q, axis=0)
 
 
+def bounded_targets(
+    targets: jax.Array, low: jax.Array | float, high: jax.Array | float, clip
+) -> jax.Array:
+    """Q̂ clipped into [low, high] where the traced 0/1 switch ``clip`` is 1, else Q̂ itself.
+
+    With the bounds of every achievable return (``envs.reward.return_bounds``) this cuts the
+    feedback by which one critic's overestimate, bootstrapped through Q̂, grows without limit
+    (HER, Andrychowicz et al. 2017, clips its targets to the return range the same way).
+    """
+    return jnp.where(clip > 0, jnp.clip(targets, low, high), targets)
+
+
 def critic_losses(q: jax.Array, targets: jax.Array) -> jax.Array:
     """Per-critic TD loss (1/n) Σ_i (Q̂_i - Q_k(s_i, a_i))²: q [n_critics, n] → [n_critics]."""
     return jnp.mean(jnp.square(jax.lax.stop_gradient(targets) - q), axis=-1)

@@ -33,6 +33,7 @@ update on 3 of 4 steps instead of computing it and selecting.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -55,6 +56,7 @@ from advisor_jax.agent.replay_buffer import (
 from advisor_jax.agent.selector import select_action
 from advisor_jax.contract import spec
 from advisor_jax.training import phases
+from envs.reward import return_bounds
 
 
 @struct.dataclass
@@ -101,7 +103,7 @@ def make_train(cfg: TrainConfig) -> Trainer:
     agent = cfg.agent
     env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)  # 0: arena's
     advisor = arena_advisor(env)
-    learner = make_learner(agent)
+    learner = make_learner(agent, functools.partial(return_bounds, env.config))
     actor = make_actor(agent.actor_hidden)
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
     action_low = jnp.asarray(spec.ACTION_LOW, jnp.float32)

@@ -187,6 +187,37 @@ def test_table1_json_schema(tmp_path):
     assert "beta=1, beta_normalize=1" in text and "the preset's hyperparameters" in text
 
 
+def test_table1_pairs_seeds_and_states_which_orderings_hold(tmp_path):
+    """Paired by seed: ADDPG+AfP − ADDPG+AfD = (+0.2, +0.1, +0.3) → 20 ± 24.8 points
+    (t_0.975,2 = 4.303, sd 10, n 3): not resolved; with 4 seeds (+0.2, +0.1, +0.3, +0.2),
+    20 ± 13.0: holds. ADDPG+AfDP is worse than ADDPG+AfP in every seed: reversed."""
+    root = tmp_path / "runs"
+    root.mkdir()
+    seeds = [0, 1, 2, 3]
+    _fake_run(root, "ADDPG+AfD", 6, {}, seeds, [0.5, 0.6, 0.4, 0.5])
+    _fake_run(root, "ADDPG+AfP", 6, {}, seeds, [0.7, 0.7, 0.7, 0.7])
+    _fake_run(root, "ADDPG+AfDP", 6, {}, seeds, [0.1, 0.2, 0.0, 0.15])
+    run = next(root.glob("ADDPG_AfDP*"))
+    (run / "command.json").write_text(json.dumps({"command": "advisor-jax train --agent X"}))
+    rows = table1.load_table(root)
+    found = {(c["better"], c["worse"]): c for c in table1.comparisons(rows)}
+    afp = found["ADDPG+AfP", "ADDPG+AfD"]["training"]
+    assert afp["seeds"] == 4 and afp["verdict"] == "holds"
+    assert afp["mean"] == pytest.approx(20.0) and afp["half"] == pytest.approx(12.99, abs=0.01)
+    assert found["ADDPG+AfDP", "ADDPG+AfP"]["training"]["verdict"] == "reversed"
+    three = {**rows[0], "by_seed": {"training": {s: rows[0]["by_seed"]["training"][s]
+                                                 for s in (0, 1, 2)}}}  # fmt: skip
+    d = table1.paired_difference(rows[1], three, "training")  # seeds 0-2 only
+    assert d["seeds"] == 3 and d["half"] == pytest.approx(24.84, abs=0.01)
+    assert d["verdict"] == "not resolved"
+    assert "ADDPG > DDPG" not in str(found)  # rows that are absent are not compared
+    out = tmp_path / "out"
+    table1.summarize(argparse.Namespace(runs=[root], out=out))
+    text = (out / "table1.md").read_text()
+    assert "ADDPG+AfDP > ADDPG+AfP" in text and "(reversed)" in text
+    assert "`advisor-jax train --agent X`" in text  # the device run's command.json
+
+
 def test_export_copies_only_the_small_files(tmp_path):
     run = tmp_path / "run"
     (run / "checkpoints" / "40").mkdir(parents=True)

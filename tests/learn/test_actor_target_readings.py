@@ -91,7 +91,7 @@ def test_diagnostics_not_defined_are_nan():
     assert float(no_afp["diag/step"]) == pytest.approx(0.1 * NORMS.mean(), rel=1e-5)
 
 
-@pytest.mark.parametrize("name", ["beta_normalize", "clip_actor_target"])
+@pytest.mark.parametrize("name", ["beta_normalize", "clip_actor_target", "clip_q_target"])
 def test_switches_take_zero_or_one(name):
     validate_hparams(HParams(**{name: 1.0}))
     with pytest.raises(ValueError, match=f"{name}=0.5 is a switch: 0 or 1"):
@@ -103,7 +103,7 @@ def test_only_the_stable_preset_departs_from_the_literal_eq2():
     three settings the 16-seed evidence supports (results/afp_collapse/)."""
     for name in ("paper", "physical", "quick"):
         hp = preset(name)[1]
-        assert (hp.beta_normalize, hp.clip_actor_target) == (0.0, 0.0)
+        assert (hp.beta_normalize, hp.clip_actor_target, hp.clip_q_target) == (0.0, 0.0, 0.0)
     (paper_cfg, paper), (stable_cfg, stable) = preset("paper"), preset("stable")
     assert stable_cfg == paper_cfg
     assert stable == paper.replace(beta=1.0, beta_normalize=1.0, clip_actor_target=1.0)

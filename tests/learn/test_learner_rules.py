@@ -11,6 +11,7 @@ import pytest
 
 from advisor_jax.agent.update_rules import (
     addpg_actor_targets,
+    bounded_targets,
     clip_action,
     critic_losses,
     critic_targets,
@@ -112,6 +113,19 @@ def test_critic_targets_twin_single_and_terminal():
     )
     # γ = 0: the reward alone.
     np.testing.assert_allclose(critic_targets(reward, terminal, twin, 0.0), reward)
+
+
+def test_bounded_targets_clip_only_where_switched_on():
+    targets = jnp.array([-30.0, 5.0, 17.5, 20.0])
+    np.testing.assert_array_equal(
+        bounded_targets(targets, -17.5, 17.5, 1.0), [-17.5, 5.0, 17.5, 17.5]
+    )
+    np.testing.assert_array_equal(bounded_targets(targets, -17.5, 17.5, 0.0), targets)
+    # The switch is traced: one vmapped population can hold both settings.
+    both = jax.vmap(bounded_targets, in_axes=(None, None, None, 0))(
+        targets, -1.0, 1.0, jnp.array([0.0, 1.0])
+    )
+    np.testing.assert_array_equal(both, [targets, [-1.0, 1.0, 1.0, 1.0]])
 
 
 def test_critic_losses_per_critic():

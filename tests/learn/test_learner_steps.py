@@ -99,7 +99,7 @@ def test_init_and_what_each_step_touches(agents, random_batch, name):
     for m in (metrics, metrics_actor):
         assert all(v.shape == () for v in m.values())
         assert all(np.isfinite(v) for k, v in m.items() if not k.startswith("diag/"))
-    assert set(metrics) == {"loss/critic", "q/mean", "q/target", "grad_norm/critic"}
+    assert set(metrics) == {"loss/critic", "q/mean", "q/target", "q/clipped", "grad_norm/critic"}
     assert set(metrics_actor) == {"loss/actor", "advisor/replaced", "grad_norm/actor"} | {
         "diag/grad_q_rms", "diag/step", "diag/advisor_gap", "diag/q_gain", "diag/saturated"
     }  # fmt: skip
@@ -129,6 +129,39 @@ def test_critic_step_against_reference(agents, random_batch, ref, name):
     steps = _steps(state.critic, new.critic)
     assert steps.max() <= HP.lr_critic * (1 + 1e-4)
     assert np.median(steps) == pytest.approx(HP.lr_critic, rel=1e-3)
+
+
+def test_clip_q_target_bounds_the_td_targets(agents, random_batch, ref):
+    """With return bounds and ``clip_q_target`` = 1 the critic regresses on clip(Q̂, lo, hi)
+    (R35); with the switch off, or without bounds, on Q̂ itself. The bounds are made tight
+    (±0.3·γ) so that many of the hand-checked targets fall outside."""
+    agent = agents["ddpg"]
+    learner = make_learner(agent.cfg, lambda gamma: (-0.3 * gamma, 0.3 * gamma))
+    step = jax.jit(learner.critic_step)
+    state = _halve_targets(agent.init(jax.random.key(3)))
+    batch, key = random_batch(4, 64), jax.random.key(5)
+    next_q = ref.critics(state.target_critic, batch.next_obs, ref.actor(state.target_actor,
+                         batch.next_obs)).min(axis=0)  # fmt: skip
+    target = batch.reward + HP.gamma * (1.0 - batch.terminal) * next_q
+    bound = 0.3 * HP.gamma
+    q = ref.critics(state.critic, batch.obs, batch.action)
+    tol = dict(rtol=1e-4, atol=1e-5)
+    for switch, expected in ((1.0, np.clip(target, -bound, bound)), (0.0, target)):
+        new, metrics = step(state, batch, key, HP.replace(clip_q_target=np.float32(switch)))
+        np.testing.assert_allclose(metrics["q/target"], expected.mean(), **tol)
+        np.testing.assert_allclose(metrics["loss/critic"], ((expected - q) ** 2).mean(), **tol)
+        outside = np.mean(np.abs(target) > bound) if switch else 0.0
+        assert 0.2 < np.mean(np.abs(target) > bound) < 0.9
+        np.testing.assert_allclose(metrics["q/clipped"], outside, atol=1e-6)
+    # Switched off, the bounded learner takes the unbounded learner's step.
+    off = HP.replace(clip_q_target=np.float32(0.0))
+    for a, b in _leaves(step(state, batch, key, off)[0].critic,
+                        agent.critic_step(state, batch, key, off)[0].critic):  # fmt: skip
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-9)
+    # Without bounds the switch has nothing to clip to: Q̂ as printed.
+    _, unbounded = agent.critic_step(state, batch, key, HP.replace(clip_q_target=np.float32(1)))
+    np.testing.assert_allclose(unbounded["q/target"], target.mean(), **tol)
+    assert float(unbounded["q/clipped"]) == 0.0
 
 
 @pytest.mark.parametrize("name", ["ddpg", "addpg", "atd3"])
