@@ -37,6 +37,7 @@ from pathlib import Path
 import common
 import numpy as np
 
+from advisor_jax.agent.config import parse_agent
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.reporting import mean_ci95
 from envs.reward import return_bounds
@@ -66,7 +67,7 @@ def collapse_episode(blocks: list[float]) -> int | None:
 def uses_eq2(agent: str) -> bool:
     """ADDPG / ATD3 regress the actor on Eq. 2's Â; DDPG / TD3 (and the baselines) follow
     the DPG, for which saturated heads are where Q is highest, not a failure."""
-    return agent.startswith(("ADDPG", "ATD3"))
+    return parse_agent(agent).advisor_target
 
 
 def analyse_run(run_dir: Path, args) -> list[dict]:
@@ -185,7 +186,7 @@ def plot(path: Path, rows: list[dict], summary: list[dict]) -> None:
         mean, half = s["eval_training"]
         ax.errorbar(g, mean, yerr=half if np.isfinite(half) else None, fmt="_k", ms=20,
                     capsize=4, zorder=4)  # fmt: skip
-    ax.axhline(0.5, color="grey", ls="--", lw=1, label="advisor level")
+    ax.axhline(common.ADVISOR_LEVEL, color="grey", ls="--", lw=1, label="advisor level")
     ax.set_ylim(-0.02, 1.02)
     ax.set_xticks(range(len(summary)), [s["setting"] for s in summary], rotation=35, ha="right",
                   fontsize=7)  # fmt: skip
@@ -221,7 +222,7 @@ def main() -> None:
     )
     parser.add_argument("runs", type=Path, nargs="+", help="finished run directories")
     parser.add_argument("--out", type=Path, default=Path("results"))
-    parser.add_argument("--advisor-level", type=float, default=0.5)
+    parser.add_argument("--advisor-level", type=float, default=common.ADVISOR_LEVEL)
     parser.add_argument("--saturated", type=float, default=0.5)
     parser.add_argument("--blowup", type=float, default=100.0)
     args = parser.parse_args()

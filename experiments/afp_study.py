@@ -866,7 +866,9 @@ def main() -> None:
     s = sub.add_parser("summarize", help="pool every finished run under --runs")
     s.add_argument("--runs", type=Path, default=Path("runs/afp_study"))
     s.add_argument("--out", type=Path, default=Path("results"))
-    s.add_argument("--collapse-below", type=float, default=0.5, help="the advisor's success")
+    s.add_argument(
+        "--collapse-below", type=float, default=common.ADVISOR_LEVEL, help="the advisor's success"
+    )
     args = parser.parse_args()
     if args.command == "summarize":
         summarize(args)

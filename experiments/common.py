@@ -242,6 +242,8 @@ def write_markdown(path: str | os.PathLike, lines: Sequence[str], echo: bool = F
 
 # -- populations trained with the tool (table1.py, afp_study.py) ----------------------------
 
+ADVISOR_LEVEL = 0.5  # the advisor's own success (results/advisor.md): a seed below it collapsed
+
 SMALL_RUN_FILES = ("run.json", "eval.json", "metrics.npz", "train_log.jsonl", "episodes.csv")
 """What a summary reads from a run directory: the files worth copying off a GPU machine
 (never ``checkpoints/`` or ``params/``, which hold every agent's replay buffer and weights)."""

@@ -49,7 +49,6 @@ STUDY: dict[str, dict[str, list[tuple[str, dict]]]] = {
     },
 }
 ARENAS = ("training", "validation")
-ADVISOR_LEVEL = 0.5  # the advisor's own success (results/advisor.md): below it, collapsed
 
 
 def run_eval_seed(summary: dict) -> int:
@@ -114,8 +113,8 @@ def compare(study: dict, root: Path) -> list[dict]:
                 "fp32_mean_ci": mean_ci95(a),
                 "bf16_mean_ci": mean_ci95(b),
                 "difference_mean_ci": mean_ci95(b - a),
-                "collapsed": {"fp32": int((a < ADVISOR_LEVEL).sum()),
-                              "bf16": int((b < ADVISOR_LEVEL).sum())},
+                "collapsed": {"fp32": int((a < common.ADVISOR_LEVEL).sum()),
+                              "bf16": int((b < common.ADVISOR_LEVEL).sum())},
             }  # fmt: skip
         rows.append(row)
     return rows
@@ -155,7 +154,7 @@ def plot(path: Path, rows: list[dict]) -> None:
         for k, key in enumerate(("fp32_mean_ci", "bf16_mean_ci")):
             m, h = row[arena][key]
             ax.errorbar(k + 0.15, 100 * m, yerr=100 * h, fmt="s", color="k", capsize=3)
-        ax.axhline(100 * ADVISOR_LEVEL, color="tab:red", lw=0.8, ls=":")
+        ax.axhline(100 * common.ADVISOR_LEVEL, color="tab:red", lw=0.8, ls=":")
         ax.set_xticks([0, 1], ["fp32", "bf16"])
         ax.set_xlim(-0.4, 1.5)
         ax.set_title(f"{row['agent']}\n{arena}", fontsize=9)

@@ -45,7 +45,6 @@ PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
 }
 ORDER = (*PAPER_AGENTS, "TD3", "ATD3", "ATD3+AfD")
 ARENAS = ("training", "validation")
-ADVISOR_LEVEL = 0.5  # the advisor's own success (results/advisor.md): a seed below it collapsed
 # The paper's claims as (better, worse) pairs: its Table 1 ordering, adjacent rows, then the
 # effect of the advisor in policy updating (AfP) over the same agent without it.
 PAPER_ORDERING = (
@@ -216,7 +215,7 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
         speed = [v for v in ev["training"]["collision_speed"] if v is not None]
         paper = PAPER_TABLE1.get(r["agent"])
         diverged = len(r["summary"].get("diverged", []))
-        below = sum(v < ADVISOR_LEVEL for v in r["success"].get("training", []))
+        below = sum(v < common.ADVISOR_LEVEL for v in r["success"].get("training", []))
         table.append(
             (
                 r["agent"],
@@ -233,7 +232,7 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
         "seeds",
         "training env",
         "validation env",
-        f"seeds below {100 * ADVISOR_LEVEL:g} %",
+        f"seeds below {100 * common.ADVISOR_LEVEL:g} %",
         "collision speed, eval (m/s)",
         "paper (train / val)",
         "settings",
