@@ -311,14 +311,16 @@ def finished_runs(root: Path) -> tuple[list[tuple[Path, dict]], list[str]]:
 def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
     """The settings of one agent of a run: its preset, its training episodes and the
     hyperparameters in which it differs from that preset's defaults (``beta``,
-    ``beta_normalize``, ...). A run.json without a ``preset`` was trained from ``paper``."""
-    from advisor_jax.agent.config import HPARAM_NAMES, preset
+    ``beta_normalize``, ...). A run.json without a ``preset`` was trained from ``paper``; one
+    without a hyperparameter was trained before it existed, so with what its ``HParams``
+    default (the paper's value, a switch off) means, whatever the preset says today."""
+    from advisor_jax.agent.config import HPARAM_NAMES, HParams, preset
 
     name = summary.get("preset", "paper")
-    defaults = preset(name, summary["agent"])[1]
+    defaults, before = preset(name, summary["agent"])[1], HParams()
     settings: dict[str, Any] = {"preset": name, "episodes": summary["config"]["episodes"]}
     for field in HPARAM_NAMES:
-        value = agent_row.get(field, getattr(defaults, field))  # older runs lack newer fields
+        value = agent_row.get(field, getattr(before, field))
         if not math.isclose(value, getattr(defaults, field), rel_tol=1e-6):
             settings[field] = value
     return settings

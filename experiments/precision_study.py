@@ -225,8 +225,9 @@ def main() -> None:
         "",
         "![per-seed success, fp32 and bf16, paired](precision_study.png)",
         "",
-        "Runs (preset `stable`, 500 episodes, NVIDIA H100; the fp32 ATD3+AfDP runs are "
-        "issue 16's, at the settings `stable` names):",
+        "Runs (preset `stable` as it was before it clipped the TD target, i.e. at "
+        "`clip_q_target=0`; 500 episodes, NVIDIA H100; the fp32 ATD3+AfDP runs are issue "
+        "16's):",
         "",
         *commands,
         "",

@@ -170,7 +170,12 @@ def comparisons(rows: list[dict]) -> list[dict]:
             if better in by_agent and worse in by_agent:
                 diffs = {a: paired_difference(by_agent[better], by_agent[worse], a) for a in ARENAS}
                 if any(diffs.values()):
-                    out.append({"kind": kind, "better": better, "worse": worse, **diffs})
+                    a, b = by_agent[better]["settings"], by_agent[worse]["settings"]
+                    differs = sorted(k for k in {*a, *b} if a.get(k) != b.get(k))
+                    out.append(
+                        {"kind": kind, "better": better, "worse": worse, "differs": differs,
+                         **diffs}
+                    )  # fmt: skip
     return out
 
 
@@ -182,14 +187,20 @@ def _comparison_lines(rows: list[dict]) -> list[str]:
     def cell(d):
         return "–" if d is None else f"{_fmt(d['mean'], d['half'])} ({d['verdict']})"
 
+    def claim(c):
+        differs = f" (differs: {', '.join(c['differs'])})" if c["differs"] else ""
+        return f"{c['better']} > {c['worse']}{differs}"
+
     table = [
-        (c["kind"], f"{c['better']} > {c['worse']}", c["training"]["seeds"] if c["training"]
-         else "–", cell(c["training"]), cell(c["validation"]))
+        (c["kind"], claim(c), c["training"]["seeds"] if c["training"] else "–",
+         cell(c["training"]), cell(c["validation"]))
         for c in found
     ]  # fmt: skip
     return [
         "Which of the paper's claims hold here: the difference in success points, seed by "
-        "seed, mean ± 95 % CI; `holds` when the interval lies above 0, `reversed` below 0.",
+        "seed, mean ± 95 % CI; `holds` when the interval lies above 0, `reversed` below 0. "
+        "Where the two rows were trained at different settings, the claim names them: "
+        "such a difference is not the agent types' alone.",
         "",
         *common.markdown_table(
             ["claim", "paper", "paired seeds", "training env", "validation env"],
@@ -198,6 +209,21 @@ def _comparison_lines(rows: list[dict]) -> list[str]:
         ),
         "",
     ]
+
+
+def _where_text(rows: list[dict]) -> str:
+    """The device and training date of the rows: one phrase when they share them, else
+    each (device, date) with the agent types trained there."""
+    where: dict[tuple[str, str], list[str]] = {}
+    for r in rows:
+        key = (r["summary"]["device"], r["summary"]["created"][:10])
+        where.setdefault(key, []).append(r["agent"])
+    if len(where) == 1:
+        (device, date), _ = where.popitem()
+        return f"device {device}, trained {date}"
+    return "trained on " + "; ".join(
+        f"{device}, {date} ({', '.join(agents)})" for (device, date), agents in where.items()
+    )
 
 
 def _table_lines(rows: list[dict], root: Path) -> list[str]:
@@ -243,8 +269,8 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
     return [
         f"## `{root}`: {settings}",
         "",
-        f"Seeds {[a['seed'] for a in first['agents']]}; device {first['device']}, trained "
-        f"{first['created'][:10]}; evaluation: deterministic actor, "
+        f"Seeds {[a['seed'] for a in first['agents']]}; {_where_text(rows)}; evaluation: "
+        "deterministic actor, "
         f"{first['evaluation']['training']['episodes']} episodes per arena, the same episodes "
         "for every agent type. Mean ± 95 % CI over seeds (%).",
         "",

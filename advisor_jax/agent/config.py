@@ -314,16 +314,22 @@ class TrainConfig:
 
 # Presets --------------------------------------------------------------------------------
 
-# paper, physical and quick keep the paper's literal Eq. (2) (beta_normalize = 0,
-# clip_actor_target = 0). stable is paper with the reading that 16 seeds of ATD3+AfDP
-# support (results/afp_collapse/afp_collapse.md; docs/architecture.md, R33/R34): Â clipped
-# to the action box and a scale-free step of length β = 1. At literal β >= 3, 4 of 8 seeds
-# collapsed (saturated heads, steps of 5-164 action units); scale-free and clipped, none of
-# 24 did (worst seed 70 %), and the mean rose from the paper's β's ~60 % to 82 %.
+# paper, physical and quick keep the paper's literal Eqs. (2) and (4) (beta_normalize = 0,
+# clip_actor_target = 0, clip_q_target = 0). stable is paper with the readings that 16 seeds
+# per agent type support (docs/architecture.md R33-R35):
+# - Â clipped to the action box and a scale-free step of length β = 1
+#   (results/afp_collapse/afp_collapse.md): at literal β >= 3, 4 of 8 ATD3+AfDP seeds
+#   collapsed (saturated heads, steps of 5-164 action units); scale-free and clipped, none
+#   of 24 did, and the mean rose from the paper's β's ~60 % to 82 %;
+# - the TD target clipped to the arena's return bounds (results/q_target_clip.md): without
+#   it 7 of 64 ADDPG-family seeds collapsed as their one critic overestimated past any
+#   achievable return; with it none of 80 seeds of five agent types ended below 56 %.
 PRESETS: dict[str, tuple[dict, dict, dict]] = {
     # name: (AgentConfig overrides, TrainConfig overrides, HParams overrides)
     "paper": ({}, {}, {}),
-    "stable": ({}, {}, dict(beta=1.0, beta_normalize=1.0, clip_actor_target=1.0)),
+    "stable": (
+        {}, {}, dict(beta=1.0, beta_normalize=1.0, clip_actor_target=1.0, clip_q_target=1.0)
+    ),
     "physical": (
         dict(buffer_size=50_000, batch_size=500, policy_delay=3),
         dict(arena="physical", episodes=200),

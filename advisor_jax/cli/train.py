@@ -37,8 +37,9 @@ class TrainArgs:
 
     preset: Literal["quick", "paper", "stable", "physical"] = "quick"
     """Starting point: quick (small networks, minutes on a CPU), paper (Tables A2/A4,
-    simulation), stable (paper with Eq. 2's Â clipped to the action box and a scale-free
-    step β = 1: no collapsed seed in 16; docs/architecture.md R33/R34), physical (Tables
+    simulation), stable (paper with Eq. 2's Â clipped to the action box, a scale-free
+    step β = 1 and the TD target clipped to the arena's return bounds: no seed of any
+    Table 1 type below the advisor in 16; docs/architecture.md R33-R35), physical (Tables
     A2/A4, physical column, physical arena)."""
     agent: str = "ATD3+AfDP"
     """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1), or

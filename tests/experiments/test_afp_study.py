@@ -4,6 +4,7 @@ pieces, the Welch interval, and the summaries of hand-made run directories."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import re
@@ -230,3 +231,40 @@ def test_export_copies_only_the_small_files(tmp_path):
         "metrics.npz",
         "run.json",
     ]
+
+
+def test_table1_names_the_settings_and_devices_that_differ(tmp_path):
+    """A claim between rows trained at different settings says so, and rows trained on
+    different devices are listed with theirs."""
+    root = tmp_path / "runs"
+    root.mkdir()
+    seeds = [0, 1, 2]
+    _fake_run(root, "ADDPG", 6, {"clip_q_target": [1.0]}, seeds, [0.8, 0.8, 0.9], device="gpu-a")
+    _fake_run(root, "DDPG", 6, {}, seeds, [0.7, 0.6, 0.8], device="gpu-b")
+    rows = table1.load_table(root)
+    (claim,) = table1.comparisons(rows)
+    assert (claim["better"], claim["worse"], claim["differs"]) == (
+        "ADDPG",
+        "DDPG",
+        ["clip_q_target"],
+    )
+    lines = "\n".join(table1._table_lines(rows, root))
+    assert "ADDPG > DDPG (differs: clip_q_target)" in lines
+    assert "trained on gpu-b, 2026-11-24 (DDPG); gpu-a, 2026-11-24 (ADDPG)" in lines
+
+
+def test_a_run_older_than_a_hyperparameter_reads_as_its_paper_value():
+    """An agent row without ``clip_q_target`` was trained before the switch existed, so
+    without the clip, even under a preset whose default now turns it on."""
+    from advisor_jax.agent.config import HParams
+
+    row = dataclasses.asdict(preset("stable", "ADDPG")[1])
+    del row["clip_q_target"]
+    summary = {"agent": "ADDPG", "preset": "stable", "config": {"episodes": 500}}
+    settings = common.preset_differences(summary, row)
+    assert settings == {
+        "preset": "stable",
+        "episodes": 500,
+        "clip_q_target": HParams().clip_q_target,
+    }
+    assert settings["clip_q_target"] == 0.0

@@ -98,15 +98,18 @@ def test_switches_take_zero_or_one(name):
         validate_hparams(HParams(**{name: 0.5}))
 
 
-def test_only_the_stable_preset_departs_from_the_literal_eq2():
-    """paper/physical/quick keep Eq. (2) as printed; stable differs from paper only in the
-    three settings the 16-seed evidence supports (results/afp_collapse/)."""
+def test_only_the_stable_preset_departs_from_the_literal_eqs():
+    """paper/physical/quick keep Eqs. (2) and (4) as printed; stable differs from paper only
+    in the settings the 16-seed evidence supports (results/afp_collapse/,
+    results/q_target_clip.md)."""
     for name in ("paper", "physical", "quick"):
         hp = preset(name)[1]
         assert (hp.beta_normalize, hp.clip_actor_target, hp.clip_q_target) == (0.0, 0.0, 0.0)
     (paper_cfg, paper), (stable_cfg, stable) = preset("paper"), preset("stable")
     assert stable_cfg == paper_cfg
-    assert stable == paper.replace(beta=1.0, beta_normalize=1.0, clip_actor_target=1.0)
+    assert stable == paper.replace(
+        beta=1.0, beta_normalize=1.0, clip_actor_target=1.0, clip_q_target=1.0
+    )
 
 
 @pytest.mark.parametrize("name", ["ddpg", "addpg", "atd3"])
