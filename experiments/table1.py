@@ -34,6 +34,7 @@ from advisor_jax.agent.config import PAPER_AGENTS, PRESETS, preset
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.plots import save_png
 from advisor_jax.training.reporting import mean_ci95, moving_average
+from envs import GOAL
 
 PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
     "DDPG": (72.2, 71.3),
@@ -45,6 +46,7 @@ PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
 }
 ORDER = (*PAPER_AGENTS, "TD3", "ATD3", "ATD3+AfD")
 ARENAS = ("training", "validation")
+BLOCK = 50  # training episodes per column of the learning table
 # The paper's claims as (better, worse) pairs: its Table 1 ordering, adjacent rows, then the
 # effect of the advisor in policy updating (AfP) over the same agent without it.
 PAPER_ORDERING = (
@@ -226,6 +228,34 @@ def _where_text(rows: list[dict]) -> str:
     )
 
 
+def _learning_lines(rows: list[dict]) -> list[str]:
+    """Training success per block of ``BLOCK`` episodes, mean over seeds (metrics.npz
+    ``outcome``): when each agent type learns, which the final evaluation does not show
+    (the advisor's jump start in data collection, say, and what follows it)."""
+    found = [(r["agent"], np.load(r["dir"] / "metrics.npz")["outcome"]) for r in rows
+             if (r["dir"] / "metrics.npz").exists()]  # fmt: skip
+    if not found:
+        return []
+    n = max(outcome.shape[1] for _, outcome in found)
+    starts = range(0, n, BLOCK)
+    table = [
+        (agent, *(f"{100 * np.mean(outcome[:, k : k + BLOCK] == GOAL):.0f}"
+                  if k < outcome.shape[1] else "–" for k in starts))
+        for agent, outcome in found
+    ]  # fmt: skip
+    return [
+        f"Training success per {BLOCK} episodes (% of episodes that reached the goal, all "
+        "seeds; the agent acts with its exploration and, with AfD, the advisor):",
+        "",
+        *common.markdown_table(
+            ["agent", *(f"{k + 1}–{min(k + BLOCK, n)}" for k in starts)],
+            table,
+            align="l" + "r" * len(starts),
+        ),
+        "",
+    ]
+
+
 def _table_lines(rows: list[dict], root: Path) -> list[str]:
     first = rows[0]["summary"]
     distinct = {json.dumps(r["settings"], sort_keys=True) for r in rows}
@@ -277,6 +307,7 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
         *common.markdown_table(header, table, align="lrrrrrrl"),
         "",
         *_comparison_lines(rows),
+        *_learning_lines(rows),
     ]
 
 

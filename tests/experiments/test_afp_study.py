@@ -217,6 +217,8 @@ def test_table1_pairs_seeds_and_states_which_orderings_hold(tmp_path):
     text = (out / "table1.md").read_text()
     assert "ADDPG+AfDP > ADDPG+AfP" in text and "(reversed)" in text
     assert "`advisor-jax train --agent X`" in text  # the device run's command.json
+    # the learning table: every fake episode reached the goal, 6 episodes = one block
+    assert "| agent | 1–6 |" in text and "| ADDPG+AfDP | 100 |" in text
 
 
 def test_export_copies_only_the_small_files(tmp_path):
