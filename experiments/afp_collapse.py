@@ -47,6 +47,8 @@ GOAL = 1
 BLOCK = 50  # episodes per training-success block
 SETTLE = 5  # logged chunks (of 1000 steps) before the critic loss's reference window
 SETTINGS = ("beta", "beta_normalize", "clip_actor_target", "clip_q_target")
+SATURATED = 0.5  # default --saturated: share of output heads at a bound
+BLOWUP = 100.0  # default --blowup: critic loss over its early median
 
 
 def first_episode(mask: np.ndarray, episode_at_chunk: np.ndarray) -> int | None:
@@ -223,8 +225,8 @@ def main() -> None:
     parser.add_argument("runs", type=Path, nargs="+", help="finished run directories")
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--advisor-level", type=float, default=common.ADVISOR_LEVEL)
-    parser.add_argument("--saturated", type=float, default=0.5)
-    parser.add_argument("--blowup", type=float, default=100.0)
+    parser.add_argument("--saturated", type=float, default=SATURATED)
+    parser.add_argument("--blowup", type=float, default=BLOWUP)
     args = parser.parse_args()
     for run_dir in args.runs:
         missing = [

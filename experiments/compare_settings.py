@@ -76,7 +76,9 @@ def side_stats(row: dict, analysed: list[dict], level: float) -> dict:
 
 def compare(treatment_root: Path, control_root: Path, level: float) -> list[dict]:
     """One entry per agent type found under both roots, in Table 1's order."""
-    thresholds = argparse.Namespace(advisor_level=level, saturated=0.5, blowup=100.0)
+    thresholds = argparse.Namespace(
+        advisor_level=level, saturated=afp_collapse.SATURATED, blowup=afp_collapse.BLOWUP
+    )
     control = {r["agent"]: r for r in table1.load_table(control_root)}
     out = []
     for t in table1.load_table(treatment_root):
@@ -93,10 +95,7 @@ def compare(treatment_root: Path, control_root: Path, level: float) -> list[dict
                 difference=setting_difference(t["settings"], c["settings"]),
                 **sides,
                 paired={a: table1.paired_difference(t, c, a) for a in table1.ARENAS},
-                by_seed={
-                    "treatment": {a: t["by_seed"][a] for a in t["by_seed"]},
-                    "control": {a: c["by_seed"][a] for a in c["by_seed"]},
-                },
+                by_seed={"treatment": t["by_seed"], "control": c["by_seed"]},
             )
         )
     return out
@@ -131,6 +130,10 @@ def plot(rows: list[dict], path: Path, labels: tuple[str, str]) -> None:
     save_png(fig, path)
 
 
+def _pair(treatment: float | None, control: float | None, fmt: str) -> str:
+    return " / ".join("–" if v is None else format(v, fmt) for v in (treatment, control))
+
+
 def _cell(d: dict | None) -> str:
     if d is None:
         return "–"
@@ -153,10 +156,15 @@ def markdown(rows: list[dict], args, where: dict) -> list[str]:
             side(r["control"]),
             _cell(r["paired"]["training"]),
             _cell(r["paired"]["validation"]),
-            f"{r['treatment']['worst']:.0f} / {r['control']['worst']:.0f}",
-            f"{r['treatment']['below_advisor']} / {r['control']['below_advisor']}",
-            f"{r['treatment']['q_over_bound']} / {r['control']['q_over_bound']}",
-            f"{r['treatment']['max_q']:.1f} / {r['control']['max_q']:.1f}",
+            *(
+                _pair(r["treatment"][key], r["control"][key], fmt)
+                for key, fmt in (
+                    ("worst", ".0f"),
+                    ("below_advisor", "d"),
+                    ("q_over_bound", "d"),
+                    ("max_q", ".1f"),
+                )
+            ),  # fmt: skip
         )
         for r in rows
     ]
