@@ -29,14 +29,63 @@ from tests.train.conftest import RUN_SEEDS, TINY, agent_slice, train_tiny
 WORKER = Path(__file__).with_name("devices_worker.py")
 
 
-def _worker(devices: int, *runs: tuple[str, Path]) -> None:
-    """Runs devices_worker.py: each (mode, out) of ``runs`` in one process on ``devices``."""
+def _start(log: Path, devices: int, *runs: tuple[str, Path], process: tuple = ()):
+    """Starts devices_worker.py: each (mode, out) of ``runs`` in one process on ``devices``
+    (and, with ``process`` = (index, port), as one of two jax.distributed processes)."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    done = subprocess.run(
-        [sys.executable, str(WORKER), str(devices), *(f"{m}={out}" for m, out in runs)],
-        env=env, capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
+    argv = [sys.executable, str(WORKER), str(devices), *(f"{m}={out}" for m, out in runs)]
+    with log.open("w") as sink:  # a file, not a pipe: a full pipe would block the worker
+        return subprocess.Popen([*argv, *map(str, process)], env=env, stdout=sink,
+                                stderr=subprocess.STDOUT, text=True)  # fmt: skip
+
+
+def _wait(*procs: tuple[subprocess.Popen, Path]) -> None:
+    for proc, log in procs:
+        proc.wait(timeout=600)
+        assert proc.returncode == 0, log.read_text()[-3000:]
+
+
+def _interrupt_after_first_chunk(out: Path, program) -> None:
+    """A one-device TINY run into ``out``, stopped (checkpoint saved) after its first chunk."""
+    real = reporting.chunk_line
+
+    def chunk_line(step, *args):
+        if step == TINY.chunk_steps:
+            raise KeyboardInterrupt
+        return real(step, *args)
+
+    reporting.chunk_line = chunk_line
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            train_tiny(out, program)
+    finally:
+        reporting.chunk_line = real
+
+
+@pytest.fixture(scope="module")
+def workers(tmp_path_factory, tiny_functions):
+    """Every worker process of this module, started at once so that they share the cores
+    while this process waits (XLA's compiles are mostly single-threaded): two runs on 2
+    devices (one whole, one interrupted), the finish on 3 devices of a run interrupted on
+    one, and a whole run by two jax.distributed processes. Each test waits for its own."""
+    root = tmp_path_factory.mktemp("devices")
+    out = {name: root / name for name in ("full", "interrupted", "on_three", "distributed")}
+    _interrupt_after_first_chunk(out["on_three"], tiny_functions)
+    with socket.socket() as s:  # a free port for the coordinator
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    logs = {name: root / f"{name}.log" for name in ("two", "three", "process0", "process1")}
+    procs = {
+        "two": (_start(logs["two"], 2, ("full", out["full"]),
+                       ("interrupt", out["interrupted"])), logs["two"]),
+        "three": (_start(logs["three"], 3, ("resume", out["on_three"])), logs["three"]),
+        **{f"process{i}": (_start(logs[f"process{i}"], 1, ("full", out["distributed"]),
+                                  process=(i, port)), logs[f"process{i}"]) for i in range(2)},
+    }  # fmt: skip
+    yield out, procs
+    for proc, _ in procs.values():
+        if proc.poll() is None:
+            proc.kill()
 
 
 def _final_state(out: Path, abstract):
@@ -61,9 +110,10 @@ def _assert_same_agents(got, reference):
         assert bool(got_i.diverged) == bool(want_i.diverged)
 
 
-def test_two_devices_equal_one_and_resume_on_one(reference, tmp_path, tiny_functions):
-    full, interrupted = tmp_path / "full", tmp_path / "interrupted"
-    _worker(2, ("full", full), ("interrupt", interrupted))  # one compile for both runs
+def test_two_devices_equal_one_and_resume_on_one(reference, workers, tiny_functions):
+    out, procs = workers
+    _wait(procs["two"])  # one compile for both runs
+    full, interrupted = out["full"], out["interrupted"]
     saved = json.loads((full / "run.json").read_text())
     assert saved["status"] == "finished" and saved["devices"] == 2
     assert len(saved["agents"]) == len(RUN_SEEDS)  # the padding agent is never written
@@ -77,42 +127,19 @@ def test_two_devices_equal_one_and_resume_on_one(reference, tmp_path, tiny_funct
     _assert_same_agents(_final_state(interrupted, reference[2]), reference)
 
 
-def test_two_processes_equal_one(reference, tmp_path):
+def test_two_processes_equal_one(reference, workers):
     """Two jax.distributed processes on localhost, one CPU device each, train one population
     into one run directory (process 0 writes it): the same per-agent results."""
-    with socket.socket() as s:  # a free port for the coordinator
-        s.bind(("127.0.0.1", 0))
-        port = str(s.getsockname()[1])
-    out = tmp_path / "run"
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    argv = [sys.executable, str(WORKER), "1", f"full={out}"]
-    procs = [
-        subprocess.Popen([*argv, str(i), port], env=env, stdout=subprocess.PIPE,
-                         stderr=subprocess.STDOUT, text=True)
-        for i in range(2)
-    ]  # fmt: skip
-    outputs = [p.communicate(timeout=600)[0] for p in procs]
-    for p, text in zip(procs, outputs, strict=True):
-        assert p.returncode == 0, text[-3000:]
-    saved = json.loads((out / "run.json").read_text())
+    out, procs = workers
+    _wait(procs["process0"], procs["process1"])
+    saved = json.loads((out["distributed"] / "run.json").read_text())
     assert saved["status"] == "finished" and saved["processes"] == 2 and saved["devices"] == 2
-    _assert_same_agents(_final_state(out, reference[2]), reference)
+    _assert_same_agents(_final_state(out["distributed"], reference[2]), reference)
 
 
-def test_one_device_checkpoint_resumes_on_three(reference, tmp_path, tiny_functions, monkeypatch):
-    out = tmp_path / "run"
-    real = reporting.chunk_line
-
-    def chunk_line(step, *args):
-        if step == TINY.chunk_steps:
-            raise KeyboardInterrupt
-        return real(step, *args)
-
-    monkeypatch.setattr(reporting, "chunk_line", chunk_line)
-    with pytest.raises(KeyboardInterrupt):
-        train_tiny(out, tiny_functions)
-    monkeypatch.undo()
-    _worker(3, ("resume", out))
-    saved = json.loads((out / "run.json").read_text())
+def test_one_device_checkpoint_resumes_on_three(reference, workers):
+    out, procs = workers
+    _wait(procs["three"])
+    saved = json.loads((out["on_three"] / "run.json").read_text())
     assert saved["status"] == "finished" and saved["devices"] == 3
-    _assert_same_agents(_final_state(out, reference[2]), reference)
+    _assert_same_agents(_final_state(out["on_three"], reference[2]), reference)
