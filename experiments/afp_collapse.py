@@ -40,10 +40,10 @@ import numpy as np
 from advisor_jax.agent.config import parse_agent
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.reporting import mean_ci95
+from envs import GOAL
 from envs.reward import return_bounds
 from envs.state import EnvConfig
 
-GOAL = 1
 BLOCK = 50  # episodes per training-success block
 SETTLE = 5  # logged chunks (of 1000 steps) before the critic loss's reference window
 SETTINGS = ("beta", "beta_normalize", "clip_actor_target", "clip_q_target")
