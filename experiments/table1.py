@@ -30,7 +30,7 @@ from pathlib import Path
 import common
 import numpy as np
 
-from advisor_jax.agent.config import PAPER_AGENTS, PRESETS, preset
+from advisor_jax.agent.config import PAPER_AGENTS, PRESETS, SWITCHES, preset
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.plots import save_png
 from advisor_jax.training.reporting import mean_ci95, moving_average
@@ -134,8 +134,7 @@ def load_table(root: Path) -> list[dict]:
 def _settings_text(settings: dict) -> str:
     hp = ", ".join(f"{k}={v:g}" for k, v in settings.items() if k not in ("preset", "episodes"))
     own = ", ".join(f"{k}={v:g}" for k, v in PRESETS[settings["preset"]][2].items())
-    readings = {"beta_normalize", "clip_actor_target", "clip_q_target"}
-    literal = not readings & (set(PRESETS[settings["preset"]][2]) | set(settings))
+    literal = not set(SWITCHES) & (set(PRESETS[settings["preset"]][2]) | set(settings))
     return (
         f"preset `{settings['preset']}`"
         + (f" ({own})" if own else "")

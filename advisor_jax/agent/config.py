@@ -254,7 +254,7 @@ _HPARAM_RANGES = {
     "model_noise": (0.0, math.inf, True, False),
 }
 # Switches: traced like every hyperparameter (one sweep can hold both settings), 0 or 1 only.
-_SWITCHES = ("beta_normalize", "clip_actor_target", "clip_q_target")
+SWITCHES: tuple[str, ...] = ("beta_normalize", "clip_actor_target", "clip_q_target")
 
 
 def validate_hparams(hp: HParams) -> None:
@@ -265,7 +265,7 @@ def validate_hparams(hp: HParams) -> None:
         ok = np.isfinite(values) | (np.isinf(values) & (high == math.inf) & (values > 0))
         ok &= (values >= low) if low_inc else (values > low)
         ok &= (values <= high) if high_inc else (values < high)
-        if name in _SWITCHES:
+        if name in SWITCHES:
             ok &= (values == 0.0) | (values == 1.0)
         if not ok.all():
             bad = int(np.flatnonzero(~ok)[0])
@@ -273,7 +273,7 @@ def validate_hparams(hp: HParams) -> None:
             lo, hi = ("[" if low_inc else "("), ("]" if high_inc else ")")
             allowed = (
                 "is a switch: 0 or 1"
-                if name in _SWITCHES
+                if name in SWITCHES
                 else f"is outside {lo}{low:g}, {high:g}{hi}"
             )
             raise ValueError(f"hyperparameter {name}={values[bad]:g}{where} {allowed}")
