@@ -11,6 +11,12 @@ and at 200 training episodes (sample efficiency is the paper's claim).
     python experiments/afp_study.py train --max-agents 16 25 --runs runs/afp_study --piece 0 3
     python experiments/afp_study.py summarize --runs runs/afp_study --out results
 
+Shorter budgets are snapshots, not runs: every piece trains for the largest ``--episodes``
+and keeps each agent's actor of every smaller one (``--snapshot-episodes``; nothing before
+episode N depends on N_total, so it is the actor a run of N episodes ends with,
+tests/train/test_population.py), evaluated on the same episodes; ``--separate-episodes``
+trains a population per budget instead.
+
 Pieces: each (agent type, episodes) population is split into the fewest pieces of at most
 ``--max-agents`` agents (one number, or one per ``--episodes``), each a sub-grid × a block
 of seeds (e.g. seeds 0-4, 5-10 and 11-15 of the same points are three pieces), so that every
@@ -151,6 +157,8 @@ def study_pieces(args) -> list[Piece]:
     agents = [*args.controls, *args.agents]
     ordered = []
     for e, episodes in enumerate(args.episodes):
+        if not args.separate_episodes and episodes != max(args.episodes):
+            continue  # a snapshot of the longest pieces (snapshot_budgets)
         max_agents = args.max_agents[e if len(args.max_agents) > 1 else 0]
         for a, agent in enumerate(agents):
             if agent in args.agents:
@@ -163,6 +171,14 @@ def study_pieces(args) -> list[Piece]:
                 frozen = tuple((k, tuple(float(v) for v in vs)) for k, vs in sub.items())
                 ordered.append((key, Piece(agent, episodes, frozen, tuple(block))))
     return [piece for _, piece in sorted(ordered, key=lambda kp: kp[0])]
+
+
+def snapshot_budgets(args, episodes: int) -> tuple[int, ...]:
+    """The smaller ``--episodes`` a piece of ``episodes`` keeps actors of (none when every
+    budget trains its own pieces)."""
+    if args.separate_episodes:
+        return ()
+    return tuple(sorted(e for e in set(args.episodes) if e < episodes))
 
 
 def _check_options(args) -> None:
@@ -212,6 +228,8 @@ def _study_argv(args) -> list[str]:
         "--max-agents",
         *args.max_agents,
     ]
+    if args.separate_episodes:
+        argv.append("--separate-episodes")
     for item in args.hp:
         argv += ["--hp", item]
     return [str(a) for a in argv]
@@ -382,7 +400,11 @@ def train(args) -> None:
             if deadline.passed:
                 break
             cfg, hp = preset(args.preset, piece.agent)
-            cfg = dc.replace(cfg, episodes=piece.episodes)
+            cfg = dc.replace(
+                cfg,
+                episodes=piece.episodes,
+                snapshot_episodes=snapshot_budgets(args, piece.episodes),
+            )
             hp = dc.replace(hp, **args.hp_values)
             run_dir = args.runs / piece.name
             argv = ["train", "--runs", str(args.runs), "--piece", str(i), *_study_argv(args)]
@@ -440,13 +462,17 @@ def train(args) -> None:
 # -- summarize ------------------------------------------------------------------------------
 
 
-def _final_chunk(metrics, index: int) -> dict[str, float | None]:
+def _final_chunk(metrics, index: int, episodes: int | None = None) -> dict[str, float | None]:
     """Each diagnostic's value in the agent's last chunk of training (the chunk in which it
-    completed its episodes; later chunks only wait for the rest of the population)."""
+    completed its episodes; later chunks only wait for the rest of the population), or in
+    the chunk in which it completed ``episodes`` (a snapshot)."""
     steps = metrics["log/step"] if "log/step" in metrics else np.zeros(0)
     if steps.size == 0:
         return {name: None for name in DIAGNOSTICS}
-    last = min(int(np.searchsorted(steps, metrics["env_steps"][index])), steps.size - 1)
+    done = metrics["env_steps"][index]
+    if episodes is not None:  # one env per agent: the steps of its first `episodes` episodes
+        done = int(np.sum(metrics["length"][index, :episodes]))
+    last = min(int(np.searchsorted(steps, done)), steps.size - 1)
     out = {}
     for name in DIAGNOSTICS:
         key = f"log/{name}"
@@ -456,35 +482,50 @@ def _final_chunk(metrics, index: int) -> dict[str, float | None]:
     return out
 
 
-def collect(root: Path):
-    """Agents of every finished run under ``root`` pooled by study point: {(agent,
+def collect(roots: Path | list[Path]):
+    """Agents of every finished run under ``roots`` pooled by study point: {(agent,
     episodes, β, beta_normalize, clip): {seed: record}}, plus the runs' provenance and
-    notes on what was left out."""
-    runs, notes = common.finished_runs(root)
+    notes on what was left out (runs of other agent types, e.g. a Table 1 folder's DDPG)."""
+    runs, notes = [], []
+    for root in [roots] if isinstance(roots, Path) else roots:
+        found, left_out = common.finished_runs(root)
+        runs += found
+        notes += left_out
+    study_types = {*AFP_AGENTS, *CONTROL_OF.values()}
+    for run_dir, summary in [r for r in runs if r[1]["agent"] not in study_types]:
+        notes.append(f"{run_dir}: {summary['agent']} is not a study agent type, left out")
+    runs = [r for r in runs if r[1]["agent"] in study_types]
     points: dict[tuple, dict[int, dict]] = {}
     settings: dict[tuple, dict] = {}
     where = {"devices": set(), "dates": set(), "eval_episodes": set(), "commands": []}
     for run_dir, summary in runs:
-        ev = summary.get("evaluation") or {}
-        if not {"training", "validation"} <= set(ev):
+        evaluations = [(summary["config"]["episodes"], None, summary.get("evaluation") or {})]
+        evaluations += [  # the actors kept at smaller budgets (snapshot_episodes)
+            (int(n), int(n), ev) for n, ev in (summary.get("evaluation_at_episode") or {}).items()
+        ]
+        if not {"training", "validation"} <= set(evaluations[0][2]):
             notes.append(f"{run_dir}: not evaluated in both arenas, left out")
             continue
         metrics = (
             dict(np.load(run_dir / "metrics.npz")) if (run_dir / "metrics.npz").is_file() else {}
         )
+        ev = evaluations[0][2]
         where["devices"].add(summary.get("device", "?"))
         where["dates"].add(summary.get("created", "?")[:10])
         where["eval_episodes"].add(ev["training"]["episodes"])
-        command = (summary.get("afp_study") or {}).get("command")
+        command_file = run_dir / "command.json"  # beside a run made on the device tool
+        command = (summary.get("afp_study") or {}).get("command") or (
+            json.loads(command_file.read_text()).get("command") if command_file.is_file() else None
+        )
         if command and command not in where["commands"]:
             where["commands"].append(command)
-        diverged = set(summary.get("diverged", []))
-        for row in summary["agents"]:
+        for (episodes, snapshot, ev), row in itertools.product(evaluations, summary["agents"]):
             i = row["index"]
-            key = (summary["agent"], summary["config"]["episodes"], *(row[a] for a in AXES))
+            key = (summary["agent"], episodes, *(row[a] for a in AXES))
             other = {
                 k: v for k, v in common.preset_differences(summary, row).items() if k not in AXES
             }
+            other["episodes"] = episodes
             if settings.setdefault(key, other) != other:
                 notes.append(
                     f"{run_dir}: agent {i} differs from the same point elsewhere "
@@ -499,11 +540,12 @@ def collect(root: Path):
                 continue
             seeds[row["seed"]] = {
                 "run": run_dir.name,
-                "diverged": i in diverged,
+                "snapshot": snapshot is not None,
+                "diverged": ev["training"]["success"][i] is None,
                 "training": ev["training"]["success"][i],
                 "validation": ev["validation"]["success"][i],
                 "timeout": ev["training"]["timeout"][i],
-                "diagnostics": _final_chunk(metrics, i) if metrics else {},
+                "diagnostics": _final_chunk(metrics, i, snapshot) if metrics else {},
             }
     return points, settings, where, notes
 
@@ -522,6 +564,24 @@ def welch_ci95(a, b) -> tuple[float, float]:
     from scipy import stats
 
     return float(a.mean() - b.mean()), float(stats.t.ppf(0.975, df) * se)
+
+
+def paired_ci95(afp: dict, control: dict, arena: str) -> dict | None:
+    """The AfP point minus its control over the seeds both evaluated (a seed fixes the
+    initial networks, the environment stream and, with one eval seed, the evaluation
+    episodes): mean difference, Student-t 95 % half-width, seed count; None under 2."""
+    from advisor_jax.training.reporting import mean_ci95
+
+    shared = [s for s in afp if s in control]
+    diffs = [
+        afp[s][arena] - control[s][arena]
+        for s in shared
+        if afp[s][arena] is not None and control[s][arena] is not None
+    ]
+    if len(diffs) < 2:
+        return None
+    mean, half = mean_ci95(diffs)
+    return {"diff": mean, "ci95": half, "seeds": len(diffs)}
 
 
 def _control_key(key: tuple, points: dict) -> tuple | None:
@@ -549,6 +609,7 @@ def point_stats(points: dict, collapse_below: float) -> list[dict]:
             "afp": agent in CONTROL_OF,
             "seeds": list(seeds),
             "diverged": [s for s, r in seeds.items() if r["diverged"]],
+            "snapshot_seeds": [s for s, r in seeds.items() if r.get("snapshot")],
         }
         for arena in ("training", "validation"):
             values = [r[arena] for r in seeds.values()]
@@ -570,6 +631,7 @@ def point_stats(points: dict, collapse_below: float) -> list[dict]:
                     [r[arena] for r in points[control].values()],
                 )
                 rec["effect"][arena] = {"diff": diff, "ci95": half}
+                rec["effect"][arena]["paired"] = paired_ci95(points[key], points[control], arena)
         out.append(rec)
     return out
 
@@ -588,7 +650,10 @@ def _mode(rec: dict) -> str:
 
 
 def _effect(rec: dict, arena: str) -> str:
+    """The paired interval where the point and its control share seeds, else Welch's."""
     eff = rec.get("effect", {}).get(arena)
+    if eff and eff.get("paired"):
+        eff = eff["paired"]
     if not eff or math.isnan(eff["diff"]):
         return "–"
     d, h = 100 * eff["diff"], 100 * eff["ci95"]
@@ -710,7 +775,7 @@ def summarize(args) -> None:
         [
             "summarize",
             "--runs",
-            args.runs,
+            *args.runs,
             "--out",
             args.out,
             *(["--collapse-below", args.collapse_below] if args.collapse_below != 0.5 else []),
@@ -726,15 +791,28 @@ def summarize(args) -> None:
         f"collapsed: seeds below {100 * args.collapse_below:.0f} % (the advisor's own level) in "
         "that arena. AfP effect: mean of the AfP point minus mean of its no-AfP control "
         "(ADDPG+AfP and ADDPG+AfDP vs ADDPG+AfD, ATD3+AfDP vs ATD3+AfD; same episodes and "
-        "clip_actor_target), [Welch 95 % interval], percentage points. Diverged seeds are left "
-        "out of the means.",
+        "clip_actor_target), percentage points, with its 95 % interval: [paired] over the "
+        "seeds both evaluated where they share seeds (one seed: the same initial networks, "
+        "environment stream and evaluation episodes), else [Welch 95 % interval]; both are in "
+        "afp_study.json. Diverged seeds are left out of the means.",
         "",
     ]
     for episodes in sorted({r["episodes"] for r in stats}, reverse=True):
         sub = [r for r in stats if r["episodes"] == episodes]
+        kept = sum(len(r["snapshot_seeds"]) for r in sub)
         lines += [
             f"## {episodes} training episodes",
             "",
+            *(
+                [
+                    f"{kept} of {sum(len(r['seeds']) for r in sub)} agents here are actors "
+                    f"kept at episode {episodes} of longer runs (`--snapshot-episodes`): what a "
+                    f"run of {episodes} episodes ends with.",
+                    "",
+                ]
+                if kept
+                else []
+            ),
             *common.markdown_table(
                 (
                     "agent",
@@ -793,8 +871,8 @@ def summarize(args) -> None:
         "",
         "![per-seed success vs β](afp_study.png)",
         "",
-        f"Summary: `{summarize_cmd}`. Training commands, one per piece (`python "
-        "experiments/afp_study.py plan` with the same options lists the pieces):",
+        f"Summary: `{summarize_cmd}`. Training commands, one per run directory (an "
+        "`afp_study.py train` piece: `plan` with the same options lists the pieces):",
         "",
         *(f"- `{c}`" for c in where["commands"]),
     ]
@@ -847,6 +925,9 @@ def main() -> None:
     add("--episodes", type=int, nargs="+", default=[500, 200])
     add("--eval-episodes", type=int, default=100)
     add("--max-agents", type=int, nargs="+", default=[25], help="per piece; or per --episodes")
+    add("--separate-episodes", action="store_true",
+        help="train every --episodes budget apart (default: the smaller ones are snapshots "
+             "of the longest runs' actors)")  # fmt: skip
     add("--hp", action="append", default=[], metavar="NAME=V", help="for every agent")
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -864,7 +945,13 @@ def main() -> None:
     t.add_argument("--export", type=Path, default=None, help="small files to EXPORT/<run dir>/")
     t.add_argument("--progress", action="store_true")
     s = sub.add_parser("summarize", help="pool every finished run under --runs")
-    s.add_argument("--runs", type=Path, default=Path("runs/afp_study"))
+    s.add_argument(
+        "--runs",
+        type=Path,
+        nargs="+",
+        default=[Path("runs/afp_study")],
+        help="folders of run directories (a seed found twice for a point: the first counts)",
+    )
     s.add_argument("--out", type=Path, default=Path("results"))
     s.add_argument(
         "--collapse-below", type=float, default=common.ADVISOR_LEVEL, help="the advisor's success"

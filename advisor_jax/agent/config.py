@@ -297,9 +297,20 @@ class TrainConfig:
     """Environment steps per jitted host-loop iteration (progress, metrics, checkpoints)."""
     max_episode_steps: int = 0
     """h_max; 0 means the arena's default (300 simulation, 150 physical)."""
+    snapshot_episodes: tuple[int, ...] = ()
+    """Also keep each agent's actor as it was on completing this many episodes (each < N_total)
+    and evaluate it beside the final one: nothing before episode N depends on N_total, so
+    it is the actor a run of N episodes ends with, and one 500-episode run also answers
+    for 200 (the paper's sample-efficiency question)."""
 
     def __post_init__(self):
         _positive("episodes", self.episodes)
+        snaps = self.snapshot_episodes
+        if list(snaps) != sorted(set(snaps)) or any(not 0 < n < self.episodes for n in snaps):
+            raise ValueError(
+                f"snapshot_episodes must be distinct, increasing and between 1 and "
+                f"episodes - 1 = {self.episodes - 1}, got {list(snaps)}"
+            )
         _positive("envs_per_agent", self.envs_per_agent)
         _positive("updates_per_step", self.updates_per_step)
         _positive("chunk_steps", self.chunk_steps)
@@ -386,6 +397,7 @@ def train_config_from_dict(d: dict) -> TrainConfig:
         agent = dict(d["agent"])
         for name in ("actor_hidden", "critic_hidden"):
             agent[name] = tuple(agent[name])
+        d = {**d, "snapshot_episodes": tuple(d.get("snapshot_episodes", ()))}
         if agent.get("baseline") is not None:
             agent["baseline"] = BaselineConfig(**agent["baseline"])
         return TrainConfig(**{**d, "agent": AgentConfig(**agent)})

@@ -87,6 +87,11 @@ class TrainArgs:
     the run trains: a second run or --resume into it is refused."""
     eval_episodes: int = 100
     """Evaluation episodes per agent and arena after training (0 = skip)."""
+    snapshot_episodes: tuple[int, ...] = ()
+    """Also evaluate each agent's actor as it was after this many episodes (each below
+    --episodes), on the same episodes, into eval_episode<N>.json: e.g. --episodes 500
+    --snapshot-episodes 200 answers for 200 episodes too (the same actor a 200-episode run
+    ends with)."""
     eval_arenas: tuple[str, ...] | None = None
     """Evaluation arenas (default: training and validation; physical for the physical preset)."""
     eval_seed: int | None = None
@@ -140,7 +145,7 @@ def build_run(args: TrainArgs):
     train_overrides = {
         name: getattr(args, name)
         for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",
-                     "max_episode_steps", "chunk_steps")
+                     "max_episode_steps", "chunk_steps", "snapshot_episodes")
         if getattr(args, name) is not None
     }  # fmt: skip
     cfg = dataclasses.replace(cfg, **train_overrides)

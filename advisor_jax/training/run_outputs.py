@@ -1,9 +1,11 @@
 """What a finished run writes (``host_loop.run_training``'s last part), and the episode
-metrics an interrupted run writes too: params/, metrics.npz, episodes.csv, eval.json,
-learning_curve.png, diagnostics.png and run.json's final summary."""
+metrics an interrupted run writes too: params/, metrics.npz, episodes.csv, eval.json (and
+eval_episode<N>.json per ``TrainConfig.snapshot_episodes``), learning_curve.png,
+diagnostics.png and run.json's final summary."""
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
@@ -50,6 +52,16 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, schedule
             diverged=np.asarray(state.diverged),
         )
         atomic_write_json(out_dir / "eval.json", evaluation)
+        for k, n in enumerate(cfg.snapshot_episodes):  # the same episodes as eval.json
+            snaps = state.snapshots
+            at_n = evaluate_population(
+                evaluators,
+                jax.tree.map(lambda p: p[:, k], snaps.actor),  # noqa: B023
+                key=eval_key,
+                diverged=np.asarray(snaps.diverged[:, k] | ~snaps.taken[:, k]),
+            )
+            atomic_write_json(out_dir / f"eval_episode{n}.json", at_n)
+            summary.setdefault("evaluation_at_episode", {})[str(n)] = at_n
     plots.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
     plots.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
 
@@ -76,6 +88,8 @@ def final_params(state) -> dict:
         "target_actor": learner.target_actor,
         "target_critic": learner.target_critic,
     }
+    if state.snapshots is not None:  # [agents, K, ...]: TrainConfig.snapshot_episodes
+        params["actor_snapshots"] = state.snapshots.actor
     model = getattr(getattr(state.prior, "data", None), "model", None)
     if model is not None:  # MCP+MF: the dynamics model's weights and normaliser
         params["model"] = model.params

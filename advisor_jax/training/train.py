@@ -73,6 +73,17 @@ class EpisodeLog:
 
 
 @struct.dataclass
+class ActorSnapshots:
+    """One agent's actor as it was on completing each of ``TrainConfig.snapshot_episodes``
+    (leading axis [K]): taken at the end of the step whose episode reached the count, after
+    that step's update, which is where a run of that many episodes stops."""
+
+    actor: Any  # actor params, leading axis [K]
+    taken: jax.Array  # [K] bool: the agent has completed that many episodes
+    diverged: jax.Array  # [K] bool: its losses had gone non-finite by then (not evaluated)
+
+
+@struct.dataclass
 class TrainState:
     """Everything one agent carries through the scan."""
 
@@ -87,6 +98,7 @@ class TrainState:
     log: EpisodeLog
     key: jax.Array
     prior: Any = None  # phases.PhaseState of a baseline agent; None for the paper's agents
+    snapshots: ActorSnapshots | None = None  # None unless TrainConfig.snapshot_episodes
 
 
 class Trainer(NamedTuple):
@@ -111,6 +123,7 @@ def make_train(cfg: TrainConfig) -> Trainer:
     collision = envs.COLLISION
     schedule = phases.make_schedule(cfg, learner, actor, env)  # None for the paper's agents
     gated = schedule is not None and schedule.gated
+    snapshot_at = jnp.asarray(cfg.snapshot_episodes, jnp.int32) if cfg.snapshot_episodes else None
 
     def init(key: jax.Array) -> TrainState:
         key, k_learner, k_env = jax.random.split(key, 3)
@@ -136,6 +149,9 @@ def make_train(cfg: TrainConfig) -> Trainer:
             ),
             key=key,
             prior=prior,
+            snapshots=None
+            if snapshot_at is None
+            else _no_snapshots(learner_state.actor, snapshot_at),
         )
 
     def collect(
@@ -269,6 +285,8 @@ def make_train(cfg: TrainConfig) -> Trainer:
                     schedule, phase, state, frozen_hp, first_step + i, learn, gate
                 )
             state = state.replace(diverged=state.diverged | (nonfinite & active))
+            if snapshot_at is not None:
+                state = state.replace(snapshots=_take_snapshots(state, snapshot_at))
             metrics = {**metrics, "train/active": active, "train/episodes": state.episodes}
             return state, metrics
 
@@ -279,6 +297,30 @@ def make_train(cfg: TrainConfig) -> Trainer:
     if schedule is not None:  # offline phases take scan steps without env steps
         max_steps += schedule.offline_steps
     return Trainer(init=init, chunk=chunk, max_steps=max_steps, schedule=schedule)
+
+
+def _no_snapshots(actor, snapshot_at: jax.Array) -> ActorSnapshots:
+    k = snapshot_at.shape[0]
+    return ActorSnapshots(
+        actor=jax.tree.map(lambda p: jnp.zeros((k, *p.shape), p.dtype), actor),
+        taken=jnp.zeros(k, bool),
+        diverged=jnp.zeros(k, bool),
+    )
+
+
+def _take_snapshots(state: TrainState, snapshot_at: jax.Array) -> ActorSnapshots:
+    """Copies the actor into every snapshot whose episode count was just reached."""
+    snaps = state.snapshots
+    now = (state.episodes >= snapshot_at) & ~snaps.taken  # [K]
+
+    def keep(stored, current):
+        return jnp.where(now.reshape(-1, *([1] * current.ndim)), current[None], stored)
+
+    return ActorSnapshots(
+        actor=jax.tree.map(keep, snaps.actor, state.learner.actor),
+        taken=snaps.taken | now,
+        diverged=jnp.where(now, state.diverged, snaps.diverged),
+    )
 
 
 def _write_episodes(

@@ -61,6 +61,7 @@ def _study_args(**kw):
         episodes=[500, 200],
         eval_episodes=100,
         max_agents=[16, 25],
+        separate_episodes=False,
         hp=[],
     )
     vars(args).update(kw)
@@ -73,11 +74,17 @@ def test_study_pieces_names_and_sizes():
     names = [p.name for p in pieces]
     assert len(set(names)) == len(names)
     assert all(re.fullmatch(r"[A-Za-z0-9._-]+", n) for n in names)  # $OUT's allowed names
-    # 3 AfP types × 8 points + 2 controls, 16 seeds, at 500 and at 200 episodes
-    assert sum(p.n_agents for p in pieces) == 2 * (3 * 8 + 2) * 16
-    assert max(p.n_agents for p in pieces if p.episodes == 500) <= 16
-    assert max(p.n_agents for p in pieces if p.episodes == 200) <= 25
+    # 3 AfP types × 8 points + 2 controls, 16 seeds, at 500 episodes; 200 is a snapshot
+    assert sum(p.n_agents for p in pieces) == (3 * 8 + 2) * 16
+    assert {p.episodes for p in pieces} == {500} and max(p.n_agents for p in pieces) <= 16
+    assert afp_study.snapshot_budgets(_study_args(), 500) == (200,)
     assert pieces[0].agent == "ADDPG+AfD" and pieces[0].episodes == 500
+    apart = _study_args(separate_episodes=True)  # every budget trained on its own
+    pieces = afp_study.study_pieces(apart)
+    assert sum(p.n_agents for p in pieces) == 2 * (3 * 8 + 2) * 16
+    assert max(p.n_agents for p in pieces if p.episodes == 200) <= 25
+    assert afp_study.snapshot_budgets(apart, 500) == ()
+    assert "--separate-episodes" in afp_study._study_argv(apart)
 
 
 def test_welch_interval_matches_scipy():
@@ -133,6 +140,7 @@ def _fake_run(root: Path, agent: str, episodes: int, grid: dict, seeds, success,
             "env_steps": np.full(n, 150),
             "log/advisor/replaced": replaced,
             "outcome": np.ones((n, episodes), np.int32),
+            "length": np.full((n, episodes), 30, np.int32),
             "reward_per_step": curves,
             "collision_speed": curves,
         },
@@ -150,7 +158,7 @@ def test_summarize_pools_pieces_and_compares_with_the_control(tmp_path):
     _fake_run(runs, "ATD3+AfD", 6, {"clip_actor_target": [0.0]}, [0, 1, 2], [0.6, 0.5, 0.55])
     _fake_run(runs, "ATD3+AfD", 6, {}, [3], [0.2], status="interrupted")  # left out
     out = tmp_path / "out"
-    afp_study.summarize(argparse.Namespace(runs=runs, out=out, collapse_below=0.5))
+    afp_study.summarize(argparse.Namespace(runs=[runs], out=out, collapse_below=0.5))
     record = json.loads((out / "afp_study.json").read_text())
     points = {(p["agent"], p["beta_normalize"]): p for p in record["points"]}
     literal = points[("ATD3+AfDP", 0.0)]
@@ -158,6 +166,9 @@ def test_summarize_pools_pieces_and_compares_with_the_control(tmp_path):
     assert literal["training"]["per_seed"] == pytest.approx([0.9, 0.8, 0.7])
     assert literal["validation"]["collapsed"] == 3  # 0.45, 0.4, 0.35 < 0.5
     assert literal["effect"]["training"]["diff"] == pytest.approx(0.8 - 0.55)
+    paired = literal["effect"]["training"]["paired"]  # seeds 0, 1, 2 in both
+    assert paired["seeds"] == 3 and paired["diff"] == pytest.approx((0.3 + 0.3 + 0.15) / 3)
+    assert paired["ci95"] == pytest.approx(4.302653 * np.std([0.3, 0.3, 0.15], ddof=1) / 3**0.5)
     assert literal["settings"] == {"preset": "quick", "episodes": 6}  # β = 1: an axis
     # last chunk of each agent's own training (chunk 1), means over seeds: agents 0, 1, 4
     assert literal["diagnostics"]["advisor/replaced"] == pytest.approx(0.2 + (0 + 1 + 0) / 3)
@@ -167,6 +178,38 @@ def test_summarize_pools_pieces_and_compares_with_the_control(tmp_path):
     assert any("interrupted" in n for n in record["provenance"]["notes"])
     assert (out / "afp_study.png").stat().st_size > 0
     assert "Welch 95 % interval" in (out / "afp_study.md").read_text()
+
+
+def test_summarize_reads_the_actors_kept_at_a_smaller_budget(tmp_path):
+    """A 6-episode run with --snapshot-episodes 3 gives a 3-episode point of its own, with
+    the snapshot's evaluation and the diagnostics of the chunk in which episode 3 ended."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    grid = {"beta": [1.0], "beta_normalize": [1.0], "clip_actor_target": [0.0]}
+    at_3 = {
+        arena: {"success": [0.2 * f, None], "timeout": [0.5, None], "episodes": 10}
+        for arena, f in (("training", 1.0), ("validation", 0.5))
+    }
+    _fake_run(runs, "ATD3+AfDP", 6, grid, [0, 1], [0.9, 0.8], evaluation_at_episode={"3": at_3})
+    table1 = tmp_path / "table1"  # a second folder: its DDPG is no study type
+    table1.mkdir()
+    _fake_run(table1, "DDPG", 6, {}, [0], [0.7])
+    out = tmp_path / "out"
+    afp_study.summarize(argparse.Namespace(runs=[runs, table1], out=out, collapse_below=0.5))
+    record = json.loads((out / "afp_study.json").read_text())
+    points = {p["episodes"]: p for p in record["points"]}
+    assert points[6]["training"]["per_seed"] == pytest.approx([0.9, 0.8])
+    assert points[6]["snapshot_seeds"] == []
+    early = points[3]
+    assert early["training"]["per_seed"] == [0.2, None] and early["diverged"] == [1]
+    assert early["validation"]["per_seed"] == pytest.approx([0.1, None])
+    assert early["settings"] == {"preset": "quick", "episodes": 3}
+    assert early["snapshot_seeds"] == [0, 1]
+    # 3 episodes × 30 steps = 90: chunk 0 (step 100) of each agent, not its last chunk
+    assert early["diagnostics"]["advisor/replaced"] == pytest.approx(0.1 + (0 + 1) / 2)
+    assert "kept at episode 3 of longer runs" in (out / "afp_study.md").read_text()
+    assert len(record["points"]) == 2
+    assert any("DDPG is not a study agent type" in n for n in record["provenance"]["notes"])
 
 
 def test_table1_json_schema(tmp_path):

@@ -29,6 +29,7 @@ TINY = TrainConfig(
     episodes=3,
     chunk_steps=40,
     max_episode_steps=40,
+    snapshot_episodes=(2,),  # every shared run also keeps its actor of episode 2
 )
 N_CHUNKS = 3  # 3 × 40 steps ≥ 3 episodes × h_max 40: every agent finishes
 GOOD = 4  # agents 0..3 are healthy; agent 4 has an absurd critic learning rate

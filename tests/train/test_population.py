@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
 
 import envs
+from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys
 from tests.compare import assert_same_agent
 from tests.train.conftest import GOOD, TINY, agent_slice, run_chunks
@@ -45,6 +48,29 @@ def test_the_check_catches_a_broken_vmap(population, initial_state, single_runs,
         with pytest.raises(AssertionError):
             _check_against_single_runs(broken, initial_state, single_runs)
         print(f"{label}: caught")
+
+
+def test_snapshot_is_the_actor_a_shorter_run_ends_with(population):
+    """TINY keeps each agent's actor of episode 2 (of 3): it equals the final actor of the
+    same agents trained for 2 episodes, a separately compiled program. Close, not
+    bit-identical: the two programs may round differently on another CPU."""
+    state, hp, seeds = population
+    _, init_fn, chunk_fn = population_functions(
+        dataclasses.replace(TINY, episodes=2, snapshot_episodes=())
+    )
+    short = jax.device_get(run_chunks(init_fn, chunk_fn, agent_keys(seeds), hp))
+    assert np.all(state.snapshots.taken[:GOOD, 0]) and not np.any(state.snapshots.diverged[:GOOD])
+    final_moved = 0.0
+    for snap, two, final in zip(
+        *(jax.tree_util.tree_leaves(t)
+          for t in (state.snapshots.actor, short.learner.actor, state.learner.actor)),
+        strict=True,
+    ):  # fmt: skip
+        snap, two = np.asarray(snap)[:GOOD, 0], np.asarray(two)[:GOOD]
+        scale = np.abs(two).max()
+        np.testing.assert_allclose(snap, two, rtol=1e-4, atol=1e-4 * scale)
+        final_moved = max(final_moved, np.abs(np.asarray(final)[:GOOD] - snap).max() / scale)
+    assert final_moved > 1e-2  # the third episode's updates: the check can tell them apart
 
 
 def test_grid_points_differ(population):

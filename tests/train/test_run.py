@@ -10,14 +10,23 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from advisor_jax.agent.config import AgentConfig, HParams, parse_agent, preset, validate_hparams
+from advisor_jax.agent.config import (
+    AgentConfig,
+    HParams,
+    TrainConfig,
+    parse_agent,
+    preset,
+    validate_hparams,
+)
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.training import checkpoint, reporting
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population, parse_assignments
 from tests.train.conftest import N_CHUNKS, TINY, agent_slice, run_chunks
 
-QUICK = dataclasses.replace(preset("quick")[0], episodes=25, chunk_steps=500)
+QUICK = dataclasses.replace(
+    preset("quick")[0], episodes=25, chunk_steps=500, snapshot_episodes=(10,)
+)
 EVAL_EPISODES = 50
 
 
@@ -100,6 +109,27 @@ def test_learner_diagnostics_per_agent(finished_run):
     assert (out / "diagnostics.png").is_file()
 
 
+def test_snapshot_actor_is_saved_and_evaluated_on_the_same_episodes(finished_run, quick_evaluators):
+    """--snapshot-episodes 10: params/ holds each agent's actor of episode 10, and
+    eval_episode10.json (and run.json) its evaluation on eval.json's episodes."""
+    out, summary = finished_run
+    params = checkpoint.load_tree(out / "params")
+    snapshot = jax.tree_util.tree_map(lambda p: np.asarray(p)[:, 0], params["actor_snapshots"])
+    at_10 = json.loads((out / "eval_episode10.json").read_text())
+    assert at_10 == summary["evaluation_at_episode"]["10"]
+    again = evaluate_population(quick_evaluators, snapshot, key=jax.random.PRNGKey(10_000))
+    assert again["training"]["success"] == at_10["training"]["success"]
+    moved = [
+        np.abs(np.asarray(a) - np.asarray(b)).max()
+        for a, b in zip(
+            jax.tree_util.tree_leaves(snapshot),
+            jax.tree_util.tree_leaves(params["actor"]),
+            strict=True,
+        )
+    ]
+    assert max(moved) > 1e-3  # 15 more episodes of updates: not the final actor
+
+
 def test_chunk_line_is_strict_json_without_updates():
     metrics = {"loss/actor": np.full((2, 4), np.nan), "loss/critic": np.array([np.inf, 2.0])}
     line = reporting.chunk_line(500, 1.0, np.array([3, 4]), metrics)
@@ -170,6 +200,8 @@ def test_corrupt_checkpoint_gives_clear_error(tmp_path):
         (lambda: parse_agent("DDPG+AfP"), "AfP"),
         (lambda: AgentConfig(batch_size=2000, buffer_size=1000), "batch_size=2000"),
         (lambda: AgentConfig(actor_hidden=(0, 10)), "actor_hidden"),
+        (lambda: TrainConfig(episodes=10, snapshot_episodes=(10,)), r"snapshot_episodes.*\[10\]"),
+        (lambda: TrainConfig(snapshot_episodes=(200, 100)), r"increasing.*\[200, 100\]"),
         (lambda: validate_hparams(HParams(advisor_episodes=-1.0)), "advisor_episodes=-1"),
         (lambda: validate_hparams(HParams(eps_start=1.2)), "eps_start=1.2"),
         (lambda: validate_hparams(HParams(gamma=float("nan"))), "gamma=nan"),
