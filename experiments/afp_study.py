@@ -28,10 +28,13 @@ episodes only pieces of ≤ 16 agents fit 600 s even then (``plan``'s "worst" co
 running piece in time (a checkpoint, status "interrupted"; a piece whose training is done
 is let finish its evaluation) and exits with status 3. ``summarize`` pools the agents of
 every finished run directory under ``--runs`` by (agent type, episodes, β, beta_normalize,
-clip_actor_target), whichever pieces they came from; a seed found twice for one point counts
-once. Every piece is evaluated on the same episodes, keyed by the study's ``--seed``
-(``run_training``'s ``eval_seed``): the evaluation set adds no between-piece noise. The AfP
-effect is a difference of means with a Welch interval.
+clip_actor_target, any other hyperparameter that differs from the preset), whichever pieces
+they came from; a seed found twice for one point counts once, and agents trained at other
+settings (a ``--grid lr_actor=...`` beside the study) are points of their own, never pooled
+with the study's. Every piece is evaluated on the same episodes, keyed by the study's
+``--seed`` (``run_training``'s ``eval_seed``): the evaluation set adds no between-piece
+noise. The AfP effect against the control at the same settings is a paired difference over
+the seeds both share, else a difference of means with a Welch interval.
 
 On the GPU (the ``device`` tool), one piece per command: what comes back is at most eight
 files, here the piece's five small files and the three summary files. Once, here, in the
@@ -482,10 +485,18 @@ def _final_chunk(metrics, index: int, episodes: int | None = None) -> dict[str, 
     return out
 
 
+def _beside_axes(settings: dict) -> tuple[tuple[str, float], ...]:
+    """The hyperparameters, besides the study's axes, in which an agent differs from its
+    preset (e.g. ``(("lr_actor", 4e-05),)``): part of its study point, so that agents
+    trained at other settings are never pooled with the study's own."""
+    return tuple(sorted((k, v) for k, v in settings.items() if k not in ("preset", "episodes")))
+
+
 def collect(roots: Path | list[Path]):
     """Agents of every finished run under ``roots`` pooled by study point: {(agent,
-    episodes, β, beta_normalize, clip): {seed: record}}, plus the runs' provenance and
-    notes on what was left out (runs of other agent types, e.g. a Table 1 folder's DDPG)."""
+    episodes, β, beta_normalize, clip, other settings): {seed: record}}, plus the runs'
+    provenance and notes on what was left out (runs of other agent types, e.g. a Table 1
+    folder's DDPG). ``other settings`` (``_beside_axes``) is empty for the study's points."""
     runs, notes = [], []
     for root in [roots] if isinstance(roots, Path) else roots:
         found, left_out = common.finished_runs(root)
@@ -521,11 +532,11 @@ def collect(roots: Path | list[Path]):
             where["commands"].append(command)
         for (episodes, snapshot, ev), row in itertools.product(evaluations, summary["agents"]):
             i = row["index"]
-            key = (summary["agent"], episodes, *(row[a] for a in AXES))
             other = {
                 k: v for k, v in common.preset_differences(summary, row).items() if k not in AXES
             }
             other["episodes"] = episodes
+            key = (summary["agent"], episodes, *(row[a] for a in AXES), _beside_axes(other))
             if settings.setdefault(key, other) != other:
                 notes.append(
                     f"{run_dir}: agent {i} differs from the same point elsewhere "
@@ -585,11 +596,14 @@ def paired_ci95(afp: dict, control: dict, arena: str) -> dict | None:
 
 
 def _control_key(key: tuple, points: dict) -> tuple | None:
-    """The no-AfP point matching an AfP point: its control agent type, same episodes and
-    clip_actor_target (any β: without AfP, β only scales the actor's gradient)."""
-    agent, episodes, _, _, clip = key
+    """The no-AfP point matching an AfP point: its control agent type, same episodes,
+    clip_actor_target and other settings (any β: without AfP, β only scales the actor's
+    gradient). None where no control was trained at those settings."""
+    agent, episodes, _, _, clip, other = key
     control = CONTROL_OF.get(agent)
-    matches = [k for k in points if k[0] == control and k[1] == episodes and k[4] == clip]
+    matches = [
+        k for k in points if k[0] == control and k[1] == episodes and k[4] == clip and k[5] == other
+    ]
     return min(matches) if matches else None
 
 
@@ -597,15 +611,16 @@ def point_stats(points: dict, collapse_below: float) -> list[dict]:
     from advisor_jax.training.reporting import mean_ci95
 
     out = []
-    for key in sorted(points, key=lambda k: (-k[1], k[0], k[3], k[4], k[2])):
+    for key in sorted(points, key=lambda k: (-k[1], k[0], k[5], k[3], k[4], k[2])):
         seeds = dict(sorted(points[key].items()))
-        agent, episodes, beta, normalize, clip = key
+        agent, episodes, beta, normalize, clip, other = key
         rec = {
             "agent": agent,
             "episodes": episodes,
             "beta": beta,
             "beta_normalize": normalize,
             "clip_actor_target": clip,
+            "other": dict(other),
             "afp": agent in CONTROL_OF,
             "seeds": list(seeds),
             "diverged": [s for s, r in seeds.items() if r["diverged"]],
@@ -643,10 +658,14 @@ def _pct(mean: float, half: float) -> str:
 
 
 def _mode(rec: dict) -> str:
+    """How the point makes Eq. 2's step, e.g. ``scale-free, clipped``, with the settings
+    it has beside the study's axes (``, lr_actor=4e-05``)."""
     if not rec["afp"]:
-        return "no AfP"
-    mode = "scale-free" if rec["beta_normalize"] else "literal"
-    return mode + (", clipped" if rec["clip_actor_target"] else "")
+        mode = "no AfP"
+    else:
+        mode = "scale-free" if rec["beta_normalize"] else "literal"
+        mode += ", clipped" if rec["clip_actor_target"] else ""
+    return mode + "".join(f", {k}={v:g}" for k, v in rec.get("other", {}).items())
 
 
 def _effect(rec: dict, arena: str) -> str:
@@ -710,7 +729,10 @@ def plot(stats: list[dict], collapse_below: float, path: Path) -> None:
                         log_x=True,
                         width=0.08,
                     )
-            control = [r for r in stats if r["agent"] == CONTROL_OF[agent] and r["episodes"] == e]
+            control = sorted(  # the control at the study's own settings first
+                (r for r in stats if r["agent"] == CONTROL_OF[agent] and r["episodes"] == e),
+                key=lambda r: len(r["other"]),
+            )
             for r in control[:1]:
                 mean, half = r[arena]["mean"], r[arena]["ci95"]
                 half = np.nan_to_num(half)
@@ -765,6 +787,7 @@ def summarize(args) -> None:
             rec["beta"],
             rec["beta_normalize"],
             rec["clip_actor_target"],
+            tuple(rec["other"].items()),
         )
         rec["settings"] = settings[key]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -790,8 +813,9 @@ def summarize(args) -> None:
         "arena. Success in %, mean ± half-width of the Student-t 95 % interval over seeds; "
         f"collapsed: seeds below {100 * args.collapse_below:.0f} % (the advisor's own level) in "
         "that arena. AfP effect: mean of the AfP point minus mean of its no-AfP control "
-        "(ADDPG+AfP and ADDPG+AfDP vs ADDPG+AfD, ATD3+AfDP vs ATD3+AfD; same episodes and "
-        "clip_actor_target), percentage points, with its 95 % interval: [paired] over the "
+        "(ADDPG+AfP and ADDPG+AfDP vs ADDPG+AfD, ATD3+AfDP vs ATD3+AfD; same episodes, "
+        "clip_actor_target and other settings; – where no such control was trained), "
+        "percentage points, with its 95 % interval: [paired] over the "
         "seeds both evaluated where they share seeds (one seed: the same initial networks, "
         "environment stream and evaluation episodes), else [Welch 95 % interval]; both are in "
         "afp_study.json. Diverged seeds are left out of the means.",

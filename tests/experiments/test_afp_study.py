@@ -313,3 +313,26 @@ def test_a_run_older_than_a_hyperparameter_reads_as_its_paper_value():
         "clip_q_target": HParams().clip_q_target,
     }
     assert settings["clip_q_target"] == 0.0
+
+
+def test_agents_at_other_settings_are_points_of_their_own(tmp_path):
+    """An ATD3+AfDP grid over lr_actor is not pooled with the study's point at the preset's
+    lr_actor, and has no AfP effect where no control was trained at that lr_actor."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    axes = {"beta": [1.0], "beta_normalize": [1.0], "clip_actor_target": [0.0]}
+    _fake_run(runs, "ATD3+AfDP", 6, axes, [0, 1], [0.9, 0.8])
+    _fake_run(runs, "ATD3+AfDP", 6, {**axes, "lr_actor": [4e-5, 1e-4]}, [0, 1], [0.1] * 4)
+    _fake_run(runs, "ATD3+AfD", 6, {"clip_actor_target": [0.0]}, [0, 1], [0.6, 0.5])
+    out = tmp_path / "out"
+    afp_study.summarize(argparse.Namespace(runs=[runs], out=out, collapse_below=0.5))
+    record = json.loads((out / "afp_study.json").read_text())
+    afp = {tuple(p["other"].items()): p for p in record["points"] if p["agent"] == "ATD3+AfDP"}
+    assert set(afp) == {(), (("lr_actor", 4e-5),), (("lr_actor", 1e-4),)}
+    assert afp[()]["training"]["per_seed"] == pytest.approx([0.9, 0.8])  # not pooled
+    assert afp[()]["effect"]["training"]["paired"]["diff"] == pytest.approx(0.3)
+    assert afp[(("lr_actor", 4e-5),)]["training"]["per_seed"] == pytest.approx([0.1, 0.1])
+    assert "effect" not in afp[(("lr_actor", 4e-5),)]
+    assert afp[(("lr_actor", 4e-5),)]["settings"]["lr_actor"] == pytest.approx(4e-5)
+    assert not any("pooled anyway" in n for n in record["provenance"]["notes"])
+    assert "scale-free, lr_actor=0.0001" in (out / "afp_study.md").read_text()
