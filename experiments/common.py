@@ -308,20 +308,41 @@ def finished_runs(root: Path) -> tuple[list[tuple[Path, dict]], list[str]]:
     return runs, notes
 
 
+AGENT_FIELDS = ("actor_hidden", "critic_state_hidden", "critic_hidden", "buffer_size",
+                "batch_size", "policy_delay", "learning_starts", "precision")  # fmt: skip
+STATIC_SETTINGS = (*AGENT_FIELDS, "arena", "envs_per_agent", "updates_per_step",
+                   "max_episode_steps")  # fmt: skip
+"""The static settings (AgentConfig, TrainConfig) that change what an agent learns, named
+by ``preset_differences`` where a run differs from its preset."""
+
+
 def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
     """The settings of one agent of a run: its preset, its training episodes and the
-    hyperparameters in which it differs from that preset's defaults (``beta``,
-    ``beta_normalize``, ...). A run.json without a ``preset`` was trained from ``paper``; one
-    without a hyperparameter was trained before it existed, so with what its ``HParams``
-    default (the paper's value, a switch off) means, whatever the preset says today."""
+    hyperparameters and static settings (``STATIC_SETTINGS``: ``policy_delay``,
+    ``precision``, ...) in which it differs from that preset's defaults. A run.json
+    without a ``preset`` was trained from ``paper``; one without a hyperparameter was
+    trained before it existed, so with what its ``HParams`` default (the paper's value, a
+    switch off) means, whatever the preset says today."""
     from advisor_jax.agent.config import HPARAM_NAMES, HParams, preset
 
     name = summary.get("preset", "paper")
-    defaults, before = preset(name, summary["agent"])[1], HParams()
+    static, defaults = preset(name, summary["agent"])
+    before = HParams()
     settings: dict[str, Any] = {"preset": name, "episodes": summary["config"]["episodes"]}
     for field in HPARAM_NAMES:
         value = agent_row.get(field, getattr(before, field))
         if not math.isclose(value, getattr(defaults, field), rel_tol=1e-6):
+            settings[field] = value
+    # static settings (one compile each: --policy-delay, --batch-size, --precision, ...)
+    # recorded in run.json's config; a field an older run.json lacks is left unnamed
+    recorded = summary["config"]
+    for field in STATIC_SETTINGS:
+        if field in AGENT_FIELDS:
+            value, default = recorded.get("agent", {}).get(field), getattr(static.agent, field)
+        else:
+            value, default = recorded.get(field), getattr(static, field)
+        value = tuple(value) if isinstance(value, list) else value
+        if value is not None and value != default:
             settings[field] = value
     return settings
 

@@ -80,6 +80,10 @@ class TrainArgs:
     """Minibatch size override."""
     buffer_size: int | None = None
     """Replay capacity override."""
+    policy_delay: int | None = None
+    """TD3/ATD3 delay d override: actor and target updates every d critic updates
+    (Table A4: 4 in simulation, 3 physical). Only for the TD3 family (and baselines whose
+    learner is td3)."""
     chunk_steps: int | None = None
     """Environment steps per jitted chunk (progress/checkpoint granularity)."""
     out: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
@@ -134,7 +138,11 @@ def build_run(args: TrainArgs):
         raise ValueError("--out '' is empty: name the run directory (or leave --out out)")
     agent_overrides = {
         k: v
-        for k, v in (("batch_size", args.batch_size), ("buffer_size", args.buffer_size))
+        for k, v in (
+            ("batch_size", args.batch_size),
+            ("buffer_size", args.buffer_size),
+            ("policy_delay", args.policy_delay),
+        )
         if v is not None
     }
     if args.precision != "fp32":
@@ -142,6 +150,11 @@ def build_run(args: TrainArgs):
     kind = BASELINE_AGENTS.get(args.agent.strip().lower().replace(" ", ""))
     settings = parse_baseline_settings(args.baseline, kind, args.agent)
     cfg, base_hp = preset(args.preset, args.agent, baseline=settings, **agent_overrides)
+    if args.policy_delay is not None and not cfg.agent.twin:
+        raise ValueError(
+            f"--policy-delay {args.policy_delay}: {cfg.agent.name} (algo {cfg.agent.algo}) "
+            "updates its actor at every step; the delay d is a TD3/ATD3 setting"
+        )
     train_overrides = {
         name: getattr(args, name)
         for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",

@@ -336,3 +336,21 @@ def test_agents_at_other_settings_are_points_of_their_own(tmp_path):
     assert afp[(("lr_actor", 4e-5),)]["settings"]["lr_actor"] == pytest.approx(4e-5)
     assert not any("pooled anyway" in n for n in record["provenance"]["notes"])
     assert "scale-free, lr_actor=0.0001" in (out / "afp_study.md").read_text()
+
+
+def test_static_settings_that_differ_from_the_preset_are_named():
+    """--policy-delay 2 (an AgentConfig field, one compile) is named like a hyperparameter;
+    an older run.json without a static field names nothing for it."""
+    cfg = dataclasses.asdict(preset("stable", "ATD3+AfDP")[0])
+    row = dataclasses.asdict(preset("stable", "ATD3+AfDP")[1])
+    summary = {"agent": "ATD3+AfDP", "preset": "stable", "config": cfg}
+    assert common.preset_differences(summary, row) == {"preset": "stable", "episodes": 500}
+    cfg["agent"]["policy_delay"] = 2
+    cfg["agent"]["actor_hidden"] = [64, 64]  # as JSON gives it back
+    del cfg["agent"]["precision"]
+    assert common.preset_differences(summary, row) == {
+        "preset": "stable",
+        "episodes": 500,
+        "actor_hidden": (64, 64),
+        "policy_delay": 2,
+    }

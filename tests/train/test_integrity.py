@@ -329,6 +329,15 @@ def test_seed_keys_do_not_alias_and_keep_the_normal_range():
         seed_key(2**64)
 
 
+def test_policy_delay_reaches_the_td3_family_only():
+    assert build_run(TrainArgs(agent="ATD3+AfDP"))[0].agent.policy_delay == 4  # Table A4
+    assert build_run(TrainArgs(agent="ATD3+AfDP", policy_delay=2))[0].agent.delay == 2
+    with pytest.raises(ValueError, match=r"--policy-delay 2: ADDPG\+AfP \(algo addpg\)"):
+        build_run(TrainArgs(agent="ADDPG+AfP", policy_delay=2))
+    with pytest.raises(ValueError, match=r"policy_delay must be a positive integer, got 0"):
+        build_run(TrainArgs(agent="ATD3+AfDP", policy_delay=0))
+
+
 def test_parse_assignments_keeps_distinct_names():
     assert parse_assignments(["beta=0.1", "tau=0.2,0.3"], "--grid") == {
         "beta": [0.1],
