@@ -665,13 +665,8 @@ def _mode(rec: dict) -> str:
     else:
         mode = "scale-free" if rec["beta_normalize"] else "literal"
         mode += ", clipped" if rec["clip_actor_target"] else ""
-    return mode + "".join(f", {k}={_setting(v)}" for k, v in rec.get("other", {}).items())
-
-
-def _setting(value) -> str:
-    if isinstance(value, (list, tuple)):
-        return "x".join(map(str, value))
-    return f"{value:g}" if isinstance(value, (int, float)) else str(value)
+    other = rec.get("other", {}).items()
+    return mode + "".join(f", {k}={common.setting_text(v)}" for k, v in other)
 
 
 def _effect(rec: dict, arena: str) -> str:

@@ -316,6 +316,23 @@ STATIC_SETTINGS = (*AGENT_FIELDS, "arena", "envs_per_agent", "updates_per_step",
 by ``preset_differences`` where a run differs from its preset."""
 
 
+def setting_text(value) -> str:
+    """One setting's value as the reports print it: ``4e-05``, ``2``, ``bf16``, ``64x64``."""
+    if isinstance(value, (list, tuple)):
+        return "x".join(map(str, value))
+    return f"{value:g}" if isinstance(value, (int, float)) else str(value)
+
+
+def preset_setting(preset_name: str, agent: str, name: str):
+    """A preset's value of a hyperparameter or of a static setting (``STATIC_SETTINGS``)."""
+    from advisor_jax.agent.config import preset
+
+    static, hp = preset(preset_name, agent)
+    if name in AGENT_FIELDS:
+        return getattr(static.agent, name)
+    return getattr(static, name) if name in STATIC_SETTINGS else getattr(hp, name)
+
+
 def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
     """The settings of one agent of a run: its preset, its training episodes and the
     hyperparameters and static settings (``STATIC_SETTINGS``: ``policy_delay``,

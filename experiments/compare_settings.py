@@ -30,24 +30,23 @@ import afp_collapse
 import common
 import table1
 
-from advisor_jax.agent.config import preset
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.plots import save_png
 from advisor_jax.training.reporting import mean_ci95
 
 
-def setting_difference(treatment: dict, control: dict) -> str:
-    """The settings in which two rows differ, e.g. ``clip_q_target=1 vs 0``; unset
-    hyperparameters are the preset's (``common.preset_differences``)."""
+def setting_difference(treatment: dict, control: dict, agent: str) -> str:
+    """The settings in which two rows of ``agent`` differ, e.g. ``clip_q_target=1 vs 0``;
+    unset ones are the preset's (``common.preset_differences``)."""
     keys = sorted(k for k in {*treatment, *control} if treatment.get(k) != control.get(k))
     if not keys:
         return "the same settings"
 
     def value(settings, k):
         if k in settings:
-            v = settings[k]
-            return f"{v:g}" if isinstance(v, float) else str(v)
-        return f"{getattr(preset(settings['preset'])[1], k):g} (the preset's)"
+            return common.setting_text(settings[k])
+        default = common.preset_setting(settings["preset"], agent, k)
+        return f"{common.setting_text(default)} (the preset's)"
 
     return ", ".join(f"{k}={value(treatment, k)} vs {value(control, k)}" for k in keys)
 
@@ -92,7 +91,7 @@ def compare(treatment_root: Path, control_root: Path, level: float) -> list[dict
         out.append(
             dict(
                 agent=t["agent"],
-                difference=setting_difference(t["settings"], c["settings"]),
+                difference=setting_difference(t["settings"], c["settings"], t["agent"]),
                 **sides,
                 paired={a: table1.paired_difference(t, c, a) for a in table1.ARENAS},
                 by_seed={"treatment": t["by_seed"], "control": c["by_seed"]},

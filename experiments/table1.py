@@ -132,7 +132,11 @@ def load_table(root: Path) -> list[dict]:
 
 
 def _settings_text(settings: dict) -> str:
-    hp = ", ".join(f"{k}={v:g}" for k, v in settings.items() if k not in ("preset", "episodes"))
+    hp = ", ".join(
+        f"{k}={common.setting_text(v)}"
+        for k, v in settings.items()
+        if k not in ("preset", "episodes")
+    )
     own = ", ".join(f"{k}={v:g}" for k, v in PRESETS[settings["preset"]][2].items())
     literal = not set(SWITCHES) & (set(PRESETS[settings["preset"]][2]) | set(settings))
     return (

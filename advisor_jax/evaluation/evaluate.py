@@ -90,6 +90,18 @@ def mean_collision_speed(m: EvalMetrics, empty: float = 0.0) -> jax.Array:
     return jnp.where(count > 0, total / jnp.maximum(count, 1), empty)
 
 
+def collision_speed_sd(m: EvalMetrics, empty: float = 0.0) -> jax.Array:
+    """Standard deviation (m/s, over collision episodes, ddof 0) of the collision speed;
+    ``empty`` when there are none. With ``mean_collision_speed`` and the collision count
+    it lets seeds be pooled into the spread over all their collisions (Table 3)."""
+    hit = m.outcome == COLLISION
+    count = jnp.maximum(jnp.sum(hit, axis=-1), 1)
+    mean = mean_collision_speed(m)
+    centred = jnp.where(hit, m.collision_speed - mean[..., None], 0.0)
+    sd = jnp.sqrt(jnp.sum(centred**2, axis=-1) / count)
+    return jnp.where(jnp.any(hit, axis=-1), sd, empty)
+
+
 def summary(m: EvalMetrics) -> dict[str, float]:
     """Host-side summary of an unstacked evaluation (plain floats, JSON-able)."""
     collisions = int(jnp.sum(m.outcome == COLLISION))
@@ -100,6 +112,7 @@ def summary(m: EvalMetrics) -> dict[str, float]:
         "collision_rate": r(collision_rate(m)),
         "timeout_rate": r(timeout_rate(m)),
         "mean_collision_speed": r(mean_collision_speed(m)) if collisions else None,
+        "collision_speed_sd": r(collision_speed_sd(m)) if collisions else None,
         "mean_length": r(jnp.mean(m.length)),
         "mean_return": r(jnp.mean(m.episode_return)),
     }
@@ -195,7 +208,9 @@ def evaluate_population(
 
     Returns:
       ``{arena: {"success": [...], "collision": [...], "timeout": [...],
-      "collision_speed": [...], "episodes": n}}`` with one entry per agent.
+      "collision_speed": [...], "collision_speed_sd": [...], "episodes": n}}`` with one
+      entry per agent (the speeds' mean and spread over its collision episodes, None
+      without any).
     """
     out = {}
     for arena, evaluator in evaluators.items():
@@ -205,6 +220,7 @@ def evaluate_population(
             "collision": collision_rate(metrics),
             "timeout": timeout_rate(metrics),
             "collision_speed": mean_collision_speed(metrics, empty=float("nan")),
+            "collision_speed_sd": collision_speed_sd(metrics, empty=float("nan")),
         }
         result = {}
         for name, value in rates.items():

@@ -15,6 +15,7 @@ import envs
 from advisor_jax.cli import main as cli
 from advisor_jax.evaluation.evaluate import (
     EvalMetrics,
+    collision_speed_sd,
     make_evaluate,
     mean_collision_speed,
     success_rate,
@@ -35,6 +36,10 @@ def test_metric_helpers_hand_values():
     )
     np.testing.assert_allclose([m.success_rate, m.collision_rate, m.timeout_rate], [0.4, 0.4, 0.2])
     np.testing.assert_allclose(m.mean_collision_speed, 0.5)  # only collision episodes count
+    np.testing.assert_allclose(collision_speed_sd(m), 0.1, rtol=1e-5)  # 0.4, 0.6 about 0.5
+    assert summary(m)["collision_speed_sd"] == pytest.approx(0.1, rel=1e-5)
+    assert summary(m.replace(outcome=jnp.full(5, GOAL)))["collision_speed_sd"] is None
+    assert math.isnan(float(collision_speed_sd(m.replace(outcome=jnp.full(5, GOAL)), math.nan)))
     none = m.replace(outcome=jnp.array([GOAL, TIMEOUT, GOAL, GOAL, TIMEOUT]))
     assert (
         float(mean_collision_speed(none)) == 0.0 and summary(none)["mean_collision_speed"] is None
