@@ -83,7 +83,8 @@ def pad(tree: Any, placement: Placement) -> Any:
 
 
 def unpad(tree: Any, placement: Placement) -> Any:
-    """The real agents of a padded tree (leading axis cut to ``n_agents``)."""
+    """The real agents of a padded tree (leading axis cut to ``n_agents``). Cut host copies
+    (``unpad(to_host(tree))``): cutting a sharded array on its devices all-gathers it."""
     if placement.n_padded == placement.n_agents:
         return tree
     return jax.tree.map(lambda x: x[: placement.n_agents], tree)

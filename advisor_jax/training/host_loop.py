@@ -57,6 +57,7 @@ from advisor_jax.training import (
     runlock,
 )
 from advisor_jax.training.devices import (
+    AXIS,
     Placement,
     freeze_padding,
     from_writer,
@@ -160,7 +161,9 @@ def _train_locked(
         return shard(freeze_padding(pad(state, placement), placement, n_total), placement)
 
     def real(tree):  # padded, sharded tree -> the real agents, numpy on the host
-        return to_host(unpad(tree, placement))
+        # Cut on the host: a slice of the sharded array on the devices would all-gather it
+        # onto every device first (the whole state, replay buffers included, at a checkpoint).
+        return unpad(to_host(tree), placement)
 
     def save_checkpoint(state):
         host = real(state)  # every process takes part in the gather; process 0 writes
@@ -289,9 +292,15 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
     functions (jit compiles on their first call); callers that train several populations
     of one config keep and reuse them."""
     trainer = make_train(cfg)
-    init, chunk = jax.vmap(trainer.init), jax.vmap(trainer.chunk, in_axes=(0, 0, None))
+    # The agent axis carries the mesh axis's name: a collective over it inside the step
+    # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
+    # written; tests/train/test_collectives.py injects one to show that its check of the
+    # compiled chunk (no collective inside the scan) catches it.
+    init = jax.vmap(trainer.init)
+    chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
     if trainer.schedule is not None and trainer.schedule.gated:  # LfD, MCP+MF
-        vmapped, schedule = jax.vmap(trainer.chunk, in_axes=(0, 0, None, None)), trainer.schedule
+        vmapped = jax.vmap(trainer.chunk, in_axes=(0, 0, None, None), axis_name=AXIS)
+        schedule = trainer.schedule
 
         def chunk(state, hp, first_step):  # the flags from every agent: unbatched (phases)
             gate = phases.population_gate(schedule, state, hp, cfg.episodes)
