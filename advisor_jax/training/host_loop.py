@@ -301,9 +301,12 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
     if trainer.schedule is not None and trainer.schedule.gated:  # LfD, MCP+MF
         vmapped = jax.vmap(trainer.chunk, in_axes=(0, 0, None, None), axis_name=AXIS)
         schedule = trainer.schedule
+        n_real = None if placement is None else placement.n_agents  # the rest: padding
 
         def chunk(state, hp, first_step):  # the flags from every agent: unbatched (phases)
-            gate = phases.population_gate(schedule, state, hp, cfg.episodes)
+            gate = phases.population_gate(
+                schedule, state, hp, cfg.episodes, cfg.chunk_steps, n_real
+            )
             return vmapped(state, hp, first_step, gate)
 
     if placement is None or placement.mesh is None:

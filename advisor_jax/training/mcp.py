@@ -24,10 +24,12 @@ with DDPG (or TD3) as the model-free learner, every episode counted against N_to
     rl          the DDPG / TD3 loop of ``make_train`` for the rest of N_total
 
 Gating (training/phases.py): the MPC action is the schedule's ``precompute`` (one K × H
-random-shooting plan per env per step) used by the mpc and dagger phases, and every offline
-phase is ``gated``; the population's flags switch them off once no agent can be in them, so
-the RL half of a run pays nothing for them. Until then every agent's step computes the MPC
-plan (one, shared by the mpc and dagger phases) and the offline bodies, whatever its phase.
+random-shooting plan per env per step) used by the mpc and dagger phases, every offline
+phase is ``gated``, and so is the RL update; the population's flags switch each off for a
+chunk in which no agent can be in a phase that uses it (phases only advance, and a phase
+more than a chunk's steps of offline work away is out of reach), so the RL half of a run
+pays nothing for the prior phases and the prior phases pay for RL only near its start.
+While on, every agent's step computes the body, whatever its own phase.
 """
 
 from __future__ import annotations

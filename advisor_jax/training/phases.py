@@ -19,20 +19,42 @@ agent's phase at each scan step is a pure function of its own counters::
 
 Counts of episodes are ``HParams`` (sweepable in one compile: they are only compared with
 N); offline step counts are static. Under ``vmap`` the phase is batched, so ``lax.switch``
-computes every phase's body at every step and selects: an agent's results do not depend
-on its neighbours (vmapped = alone), but a step costs the sum of the bodies: for LfD one
-imitation step (an actor forward/backward) and one critic step beside the RL update, for
-MCP+MF the MPC (K·H model calls) and the model and actor fits. Paid on every step of every
-agent for the whole run, so a schedule *gates* them: a ``Phase(gated=True)``'s update and
-the schedule's ``precompute`` (work shared by several collect phases, MCP+MF's MPC action)
-run under ``lax.cond`` on a flag that is the same for all agents of the population
-(``chunk_gate``: "some live agent is, at the start of this chunk, in phase i or an earlier
-one", computed outside the ``vmap`` from every agent's phase), so under ``vmap`` the cond
-stays a real branch and a population past those phases skips them. Phases only advance, so
-an agent in phase p at a chunk's start can reach, during the chunk, phases >= p only: the
-flag is on whenever an agent may need the body, and since an unselected branch's output is
-discarded, gating never changes an agent's results. LfD gates ``imitate`` and ``warmup``;
-MCP+MF its fits and, through ``precompute``, the MPC.
+computes every phase's body at every step and selects (and batches all its operands, so a
+``cond`` inside a branch becomes a select too): an agent's results do not depend on its
+neighbours (vmapped = alone), but a step costs the sum of the bodies: for LfD one
+imitation step (an actor forward/backward), one critic step and the RL update, for MCP+MF
+also the MPC (K·H model calls) and the model and actor fits. So a schedule with a gate
+(``Schedule.gated``: LfD, MCP+MF) computes its heavy bodies *before* the switch, each under
+``lax.cond`` on a flag that is the same for all agents of the population: a
+``Phase(gated=True)``'s update, the schedule's ``precompute`` (work shared by several
+collect phases, MCP+MF's MPC action) and the RL update (``rl_learn``, RL being the last
+phase). Under ``vmap`` such a cond stays a real branch, and so do the conds inside the RL
+update (the learner's warm-up, TD3's actor delay: their step index is unbatched there).
+
+The flags (``chunk_gate``, computed once per chunk outside the ``vmap`` from every agent's
+counters, ``population_gate``): gate[i] is on iff some agent may be in phase i at some step
+of the chunk's ``TrainConfig.chunk_steps`` scan steps. Agent a, in phase p_a with k_a
+offline steps done at the chunk's start, may be iff::
+
+    p_a <= i                                     phases only advance
+    offline_before[i] - k_a < chunk_steps        offline_before[i] = Σ steps of the offline
+                                                 phases before i (static)
+
+because an agent in phase i has done every offline phase before it, and k grows by at most
+one a scan step (exactly one in an offline phase, whatever the agent's state; zero in a
+collect phase). A collect phase may end at any step, so it bounds nothing. Agents counted:
+the live ones (N < N_total), and for RL also the real agents that have finished (they stay
+in RL and execute its update with zero learning rates: skipping it would move their key
+and Adam moments differently). Padding agents (``devices.freeze_padding``: N = N_total from
+the start, while their k still walks them through the offline phases into RL) never count:
+``population_functions`` passes the number of real agents. The gate is then on whenever
+some agent's selected branch reads the body, and an unselected branch's result is
+discarded, so gating never changes what any agent computes (tested bit for bit against
+the same program with every gate forced on). LfD at the paper's sizes (5,000 imitation +
+1,000 warm-up steps, chunk 1,000): a demonstration step computes the imitation step only
+(it may start at any step); the warm-up and the RL update wait for the chunk that can
+reach them. ``updates_per_step`` changes nothing here: it is the number of learner
+updates inside one RL step, while every phase advances by scan steps.
 
 To add a baseline: write its ``Phase``s (a controller for each collect phase, an update for
 each offline phase), the extra per-agent state its phases need (``Schedule.init``), and
@@ -82,7 +104,8 @@ class Phase:
     """Offline phase: (state, hp) -> (state, metrics, nonfinite); one step, pure."""
     gated: bool = False
     """Offline phase: run ``update`` under ``lax.cond`` on the population's flag for this
-    phase (``chunk_gate``), so that it is skipped once no agent can be in it."""
+    phase (``chunk_gate``), so that it is skipped while no agent can be in it during the
+    chunk. A schedule with a gated phase (or a ``precompute``) gates the RL update too."""
 
     def __post_init__(self):
         collect = self.episodes is not None and self.act is not None
@@ -104,7 +127,8 @@ class Schedule(NamedTuple):
 
     @property
     def gated(self) -> bool:
-        """Whether ``chunk`` takes the population's flags (``chunk_gate``)."""
+        """Whether ``chunk`` takes the population's flags (``chunk_gate``); the RL update is
+        then gated as well."""
         return self.precompute is not None or any(p.gated for p in self.phases)
 
     @property
@@ -159,25 +183,66 @@ def phase_index(schedule: Schedule, episodes: jax.Array, offline: jax.Array, hp:
     return jnp.where(jnp.all(done), len(done), jnp.argmin(done)).astype(jnp.int32)
 
 
-def chunk_gate(schedule: Schedule, phase: jax.Array, live: jax.Array) -> jax.Array:
-    """[len(phases) + 1] bool: phase i may run during the next chunk for some agent.
+def offline_before(schedule: Schedule) -> np.ndarray:
+    """[len(phases) + 1] int: the offline steps of the phases before phase i (static), i.e.
+    the value k must reach before an agent can be in phase i (RL last)."""
+    k, out = 0, []
+    for phase in schedule.phases:
+        out.append(k)
+        if phase.update is not None:
+            k += phase.steps
+    return np.asarray([*out, k], np.int64)
 
-    ``phase`` [agents] (or ()) is each agent's phase at the chunk's start, ``live`` whether
-    it still plays (N < N_total; padding agents do not). Phases only advance, so gate[i] =
-    some live agent is in phase i or an earlier one. Compute it outside the ``vmap`` over
-    agents: it must be the same for all (unbatched) for ``lax.cond`` to skip work."""
+
+def chunk_gate(
+    schedule: Schedule,
+    phase: jax.Array,
+    offline: jax.Array,
+    live: jax.Array,
+    chunk_steps: int,
+    real: jax.Array | None = None,
+) -> jax.Array:
+    """[len(phases) + 1] bool: phase i may run at some step of the next chunk for some agent.
+
+    Per agent (leading axis, or () for one): ``phase`` and ``offline`` (k) at the chunk's
+    start, ``live`` whether it still plays (N < N_total), ``real`` whether it is one of the
+    population's agents (False: a padding agent; None: all are). Agent a may be in phase i
+    during the chunk's ``chunk_steps`` scan steps iff
+
+        phase_a <= i                                   (phases only advance)
+        offline_before[i] - k_a < chunk_steps          (k grows by one a scan step in an
+                                                        offline phase, by none in a collect
+                                                        phase)
+
+    (a collect phase may end at any step, so it bounds nothing). Gate i is on iff some live
+    agent may; for RL also iff some real agent has finished (it stays in RL, executing its
+    frozen update: skipping it would change its carried state, the key and Adam moments). A
+    padding agent never turns a gate on. Compute it outside the ``vmap`` over agents: it
+    must be the same for all (unbatched) for ``lax.cond`` to skip work."""
     n = len(schedule.phases) + 1
-    first = jnp.min(jnp.where(live, phase, n))
-    return first <= jnp.arange(n)
+    phase, offline, live = (jnp.atleast_1d(x) for x in (phase, offline, live))
+    real = jnp.ones_like(live) if real is None else jnp.atleast_1d(real)
+    reach = (phase[:, None] <= jnp.arange(n)) & (
+        jnp.asarray(offline_before(schedule))[None, :] - offline[:, None] < chunk_steps
+    )  # [agents, n]
+    counts = live[:, None] | (real[:, None] & (jnp.arange(n) == n - 1))
+    return jnp.any(reach & counts, axis=0)
 
 
-def population_gate(schedule: Schedule, state, hp: HParams, n_total: int) -> jax.Array:
-    """``chunk_gate`` of a population's stacked state (or of one agent's)."""
+def population_gate(
+    schedule: Schedule, state, hp: HParams, n_total: int, chunk_steps: int, n_real=None
+) -> jax.Array:
+    """``chunk_gate`` of a population's stacked state (or of one agent's); ``n_real``: the
+    first ``n_real`` agents are real, the rest padding (None: all real)."""
     index = phase_index
     if state.episodes.ndim:
         index = jax.vmap(phase_index, in_axes=(None, 0, 0, 0))
-    phase = index(schedule, state.episodes, state.prior.offline_steps, hp)
-    return chunk_gate(schedule, phase, state.episodes < n_total)
+    offline = state.prior.offline_steps
+    phase = index(schedule, state.episodes, offline, hp)
+    real = None
+    if n_real is not None:
+        real = jnp.arange(jnp.atleast_1d(state.episodes).shape[0]) < n_real
+    return chunk_gate(schedule, phase, offline, state.episodes < n_total, chunk_steps, real)
 
 
 def control(schedule, phase, state, obs, actor_action, advisor_action, key, hp, gate=None):
@@ -223,8 +288,9 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
     """This step's learning: nothing in a collect phase, the phase's update (k += 1) in an
     offline phase, ``rl_learn(state, hp, step_index)`` in RL. Returns (state, metrics,
     nonfinite) with one metrics dict for all phases (NaN where a phase computes nothing)
-    and ``train/phase``. A gated phase's update is computed before the switch, under
-    ``lax.cond`` on ``gate`` (``chunk_gate``): only while some agent may be in it."""
+    and ``train/phase``. With ``gate`` (``chunk_gate``), a gated phase's update and the RL
+    update are computed before the switch, under ``lax.cond`` on their flags: only while
+    some agent may be in a phase that runs them."""
 
     def idle(state, hp, step_index):
         return state, {}, jnp.zeros((), bool)
@@ -234,16 +300,8 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
 
     def offline(i, update):
         if schedule.phases[i].gated:
-            # Outside the switch: under vmap a batched switch batches all its operands, and a
-            # cond inside a branch would become a select. Here ``gate`` is unbatched, so
-            # the cond skips the update while no agent can be in a phase that runs it.
-            shape = jax.eval_shape(update, state, hp)
             same = [j for j, k in enumerate(keys) if k is update]  # phases sharing it
-            result = jax.lax.cond(
-                jnp.any(gate[jnp.asarray(same)]), update,
-                lambda s, _: (s, nan_like(shape[1]), jnp.zeros((), bool)), state, hp,
-            )  # fmt: skip
-            update = lambda *_: result  # noqa: E731
+            update = _computed_if(jnp.any(gate[jnp.asarray(same)]), update, state, hp)
 
         def run(state, hp, step_index):
             state, metrics, bad = update(state, hp)
@@ -252,6 +310,8 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
 
         return run
 
+    if gate is not None:  # RL is the last phase: gate[-1]
+        rl_learn = _computed_if(gate[-1], rl_learn, state, hp, step_index)
     branches = [rl_learn if k == "rl" else idle if k == "idle" else offline(keys.index(k), k)
                 for k in unique]  # fmt: skip
     shapes = {}
@@ -271,6 +331,22 @@ def learn(schedule, phase, state, hp, step_index, rl_learn, gate=None):
         index, [complete(b) for b in branches], state, hp, step_index
     )
     return state, {**metrics, "train/phase": phase}, bad
+
+
+def _computed_if(on: jax.Array, body, state, *args):
+    """``body(state, *args)`` -> (state, metrics, nonfinite), computed now under
+    ``lax.cond(on, ...)`` (skipped: ``state`` unchanged, NaN metrics, not non-finite), as a
+    branch for the switch that ignores its arguments.
+
+    Outside the switch: under vmap a batched switch batches all its operands, and a cond
+    inside a branch would become a select. Here ``on`` is unbatched (``chunk_gate``), so
+    the cond really skips ``body`` while no agent can be in a phase that runs it; when on,
+    the switch picks the result only for the agents in such a phase."""
+    shape = jax.eval_shape(body, state, *args)
+    result = jax.lax.cond(
+        on, body, lambda s, *_: (s, nan_like(shape[1]), jnp.zeros((), bool)), state, *args
+    )
+    return lambda *_: result
 
 
 def _branch_table(schedule: Schedule, phase: jax.Array, keys: list) -> tuple[jax.Array, list]:

@@ -22,8 +22,10 @@ many agents equal to the same agents run one by one.
 Baselines (LfD, MCP+MF; docs/baselines.md). A baseline agent's prior-knowledge phases
 (demonstration, random or MPC episodes, model and actor fits, critic warm-up) run in the
 same scan, chosen per step from its own counters by ``training/phases.py``; a paper agent's
-program is unchanged (``prior`` None). MCP+MF's heavy bodies run under ``lax.cond`` on the
-population's unbatched ``gate`` (``chunk``'s fourth argument).
+program is unchanged (``prior`` None). The baselines' heavy bodies (offline updates, the MPC
+plan, and the RL update ``learn`` below) run under ``lax.cond`` on the population's
+unbatched ``gate`` (``chunk``'s fourth argument): on only while some agent may be in a
+phase that uses them during the chunk (``phases.chunk_gate``).
 
 Static schedule. The warm-up test and the TD3 delay ``update % d == 0`` depend only on the
 global step index, which the caller passes *unbatched* (``first_step``) and the scan derives
@@ -259,12 +261,12 @@ def make_train(cfg: TrainConfig) -> Trainer:
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array, gate=None):
         """`chunk_steps` environment steps; `first_step` is the global index of the first.
 
-        ``gate`` (a gated baseline, MCP+MF): ``phases.chunk_gate`` of the whole population,
-        computed outside the vmap (``host_loop.population_functions``); None computes it from
-        this agent (exact when it runs alone; under a vmap it is then batched and every
-        gated body runs, as in an ungated schedule)."""
+        ``gate`` (a gated baseline, LfD, MCP+MF): ``phases.chunk_gate`` of the whole
+        population, computed outside the vmap (``host_loop.population_functions``); None
+        computes it from this agent (exact when it runs alone; under a vmap it is then
+        batched and every gated body runs, as in an ungated schedule)."""
         if gated and gate is None:
-            gate = phases.population_gate(schedule, state, hp, n_total)
+            gate = phases.population_gate(schedule, state, hp, n_total, cfg.chunk_steps)
 
         def body(state: TrainState, i):
             active = (state.episodes < n_total) & ~state.diverged

@@ -65,15 +65,38 @@ def primitive_names(jaxpr, found=None) -> list[str]:
     return found
 
 
-def run_chunks_with_metrics(chunk_fn, state, hp, chunk_steps, first, last):
+def run_chunks_with_metrics(chunk_fn, state, hp, chunk_steps, first, last, gate_fn=None):
     """Chunks ``first`` .. ``last - 1`` from ``state``: (final state, the chunks' metrics
-    concatenated along the step axis), both as numpy."""
-    out = []
+    concatenated along the step axis), both as numpy. With ``gate_fn`` ((state, hp) ->
+    a baseline's population gate), the metrics also hold ``gate`` [chunks, phases + 1]:
+    each chunk's gate, from the state it started from."""
+    out, gates = [], []
     for c in range(first, last):
+        if gate_fn is not None:  # before the chunk, which donates the state
+            gates.append(np.asarray(gate_fn(state, hp)))
         state, metrics = chunk_fn(state, hp, jnp.int32(c * chunk_steps))
         out.append(jax.device_get(metrics))
     merged = {k: np.concatenate([np.asarray(m[k]) for m in out], axis=1) for k in out[0]}
+    if gate_fn is not None:
+        merged["gate"] = np.stack(gates)
     return jax.device_get(state), merged
+
+
+def gate_function(trainer, cfg):
+    """jit((state, hp) -> the population's gate), as ``population_functions`` computes it."""
+    from advisor_jax.training import phases
+
+    return jax.jit(lambda state, hp: phases.population_gate(
+        trainer.schedule, state, hp, cfg.episodes, cfg.chunk_steps))  # fmt: skip
+
+
+def assert_gate_covers_play(metrics, chunk_steps) -> None:
+    """Soundness in a run: every phase that some agent played at some step of a chunk had
+    its gate on for that chunk (all agents real, none padding)."""
+    phase, gate = metrics["train/phase"], metrics["gate"]
+    for c in range(gate.shape[0]):
+        played = np.unique(phase[:, c * chunk_steps : (c + 1) * chunk_steps])
+        assert gate[c, played].all(), f"chunk {c}: played {played}, gate {gate[c]}"
 
 
 @pytest.fixture(scope="session")

@@ -29,7 +29,13 @@ from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from tests.compare import assert_same_agent
-from tests.train.conftest import agent_slice, primitive_names, run_chunks_with_metrics
+from tests.train.conftest import (
+    agent_slice,
+    assert_gate_covers_play,
+    gate_function,
+    primitive_names,
+    run_chunks_with_metrics,
+)
 
 BC_STEPS, WARMUP = 30, 10
 TINY_LFD = TrainConfig(
@@ -60,9 +66,11 @@ def lfd_functions():
     return population_functions(TINY_LFD)
 
 
-def _run(init_fn, chunk_fn, keys, hp, n_chunks=N_CHUNKS, state=None, first=0):
+def _run(init_fn, chunk_fn, keys, hp, n_chunks=N_CHUNKS, state=None, first=0, gate_fn=None):
     state = init_fn(keys) if state is None else state
-    return run_chunks_with_metrics(chunk_fn, state, hp, TINY_LFD.chunk_steps, first, n_chunks)
+    return run_chunks_with_metrics(
+        chunk_fn, state, hp, TINY_LFD.chunk_steps, first, n_chunks, gate_fn
+    )
 
 
 @pytest.fixture(scope="module")
@@ -71,18 +79,58 @@ def lfd_population(lfd_functions):
     assert trainer.max_steps == N_CHUNKS * TINY_LFD.chunk_steps
     hp, agents = build_population(BASE_HP, GRID, SEEDS)
     keys = agent_keys([a["seed"] for a in agents])
-    state, metrics = _run(init_fn, chunk_fn, keys, hp)
+    state, metrics = _run(init_fn, chunk_fn, keys, hp, gate_fn=gate_function(trainer, TINY_LFD))
     return state, metrics, hp, agents
 
 
-def test_imitation_and_warmup_are_real_branches(lfd_population, lfd_functions):
-    """The two offline bodies are gated ``cond``s, not batched selects: once every agent is
-    in RL, a step no longer pays an imitation step and a critic step beside its update."""
+def test_imitation_warmup_and_rl_are_real_branches(lfd_population, lfd_functions):
+    """The two offline bodies and the RL update are gated ``cond``s, not batched selects:
+    once every agent is in RL, a step no longer pays an imitation step and a critic step
+    beside its update, and no step pays the RL update while no agent can reach RL in the
+    chunk. Outside the batched switch the RL update's own conds (the learner's warm-up
+    and the actor's delay, unbatched step index) stay real too: 2 + 1 + 2."""
     _, _, hp, agents = lfd_population
     _, init_fn, chunk_fn = lfd_functions
     state = jax.eval_shape(init_fn, agent_keys([a["seed"] for a in agents]))
     jaxpr = chunk_fn.trace(state, hp, jnp.int32(0)).jaxpr  # cached: no new compile
-    assert primitive_names(jaxpr.jaxpr).count("cond") == 2
+    assert primitive_names(jaxpr.jaxpr).count("cond") == 5
+
+
+def test_the_gate_covers_every_phase_played(lfd_population):
+    """Every phase an agent played in a chunk had its gate on. Chunk 0: every agent
+    demonstrates with 30 + 10 = 40 offline steps before RL, as many as the chunk's 40
+    steps, so RL's update is skipped; imitation (0 away) and warm-up (30 away) may start.
+    The last chunk: every agent in RL."""
+    _, metrics, _, _ = lfd_population
+    assert_gate_covers_play(metrics, TINY_LFD.chunk_steps)
+    np.testing.assert_array_equal(metrics["gate"][0], [True, True, True, False])
+    np.testing.assert_array_equal(metrics["gate"][-1], [False, False, False, True])
+
+
+def test_gated_run_equals_every_gate_on(lfd_population, lfd_functions):
+    """One compiled chunk, two gate inputs: the population's gate, and every gate forced on
+    (every gated body and the RL update computed at every step, as without a gate). The
+    runs are bit-identical: a gate is only off where no agent uses the body's result."""
+    _, metrics, hp, agents = lfd_population
+    trainer, init_fn, _ = lfd_functions
+    assert not metrics["gate"].all(), "the gated run skipped something"
+    chunk = jax.jit(jax.vmap(trainer.chunk, in_axes=(0, 0, None, None)))
+    gate_fn = gate_function(trainer, TINY_LFD)
+    keys = agent_keys([a["seed"] for a in agents])
+    runs = []
+    for forced in (False, True):
+
+        def chunk_fn(state, hp, first_step, forced=forced):
+            gate = gate_fn(state, hp)
+            return chunk(state, hp, first_step, jnp.ones_like(gate) if forced else gate)
+
+        runs.append(_run(init_fn, chunk_fn, keys, hp))
+    (gated, gated_metrics), (ungated, ungated_metrics) = runs
+    for a, b in zip(jax.tree.leaves(gated), jax.tree.leaves(ungated), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert gated_metrics.keys() == ungated_metrics.keys()
+    for name in gated_metrics:
+        np.testing.assert_array_equal(gated_metrics[name], ungated_metrics[name], err_msg=name)
 
 
 def test_phases_follow_the_schedule(lfd_population, lfd_functions):

@@ -30,7 +30,13 @@ from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.run_directory import load_actor
 from tests.compare import assert_same_agent
-from tests.train.conftest import agent_slice, primitive_names, run_chunks_with_metrics
+from tests.train.conftest import (
+    agent_slice,
+    assert_gate_covers_play,
+    gate_function,
+    primitive_names,
+    run_chunks_with_metrics,
+)
 
 MODEL_STEPS, BC_STEPS, WARMUP, MPC_ROUNDS, DAGGER_ROUNDS = 30, 20, 10, 2, 1
 TINY_MCP = TrainConfig(
@@ -76,8 +82,8 @@ def mcp_functions():
     return population_functions(TINY_MCP)
 
 
-def _run(chunk_fn, state, hp, first=0, last=N_CHUNKS):
-    return run_chunks_with_metrics(chunk_fn, state, hp, TINY_MCP.chunk_steps, first, last)
+def _run(chunk_fn, state, hp, first=0, last=N_CHUNKS, gate_fn=None):
+    return run_chunks_with_metrics(chunk_fn, state, hp, TINY_MCP.chunk_steps, first, last, gate_fn)
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +93,7 @@ def mcp_population(mcp_functions):
     hp, agents = build_population(BASE_HP, GRID, SEEDS)
     keys = agent_keys([a["seed"] for a in agents])
     start = jax.device_get(init_fn(keys))  # the chunk donates its input
-    state, metrics = _run(chunk_fn, init_fn(keys), hp)
+    state, metrics = _run(chunk_fn, init_fn(keys), hp, gate_fn=gate_function(trainer, TINY_MCP))
     return state, metrics, hp, agents, start
 
 
@@ -229,28 +235,31 @@ def test_mcp_run_directory(mcp_functions, tmp_path):
 
 
 def test_heavy_bodies_are_real_branches(mcp_population, mcp_functions):
-    """In the population's program the MPC plan and the four gated offline bodies
-    (normalise, fit_model, fit_actor, warmup) are ``cond``s, not batched selects: each is
-    skipped once the population's gate is off (all agents past them)."""
+    """In the population's program the MPC plan, the four gated offline bodies
+    (normalise, fit_model, fit_actor, warmup) and the RL update are ``cond``s, not batched
+    selects: each is skipped while the population's gate is off (no agent can be in a
+    phase that uses it during the chunk). Outside the batched switch the RL update's own
+    conds (the learner's warm-up, the actor's delay) stay real too: 5 + 1 + 2."""
     _, _, hp, agents, _ = mcp_population
     _, init_fn, chunk_fn = mcp_functions
     state = jax.eval_shape(init_fn, agent_keys([a["seed"] for a in agents]))
     jaxpr = chunk_fn.trace(state, hp, jnp.int32(0)).jaxpr  # cached: no new compile
-    assert primitive_names(jaxpr.jaxpr).count("cond") == 5
+    assert primitive_names(jaxpr.jaxpr).count("cond") == 8
 
 
-def test_chunk_gate():
-    """Phase i's body may run in a chunk iff some live agent starts it in phase <= i."""
-    schedule = phases.Schedule(phases=(), init=lambda *_: None)
-    schedule = schedule._replace(
-        phases=tuple(
-            phases.Phase(f"p{i}", steps=1, update=lambda s, hp: (s, {}, False)) for i in range(3)
-        )
-    )
-    gate = phases.chunk_gate(schedule, jnp.asarray([2, 1, 0]), jnp.asarray([True, True, False]))
-    np.testing.assert_array_equal(gate, [False, True, True, True])
-    gate = phases.chunk_gate(schedule, jnp.asarray([3, 0]), jnp.asarray([True, False]))
-    np.testing.assert_array_equal(gate, [False, False, False, True])  # all in RL: skip all
+def test_the_gate_covers_every_phase_played(mcp_population, mcp_functions):
+    """Every phase an agent played in a chunk had its gate on (the MPC plan: on whenever an
+    mpc or dagger phase was). Chunk 0: every agent in the random phase, so k = 0 and only
+    the phases fewer than 40 offline steps away may run: up to the first mpc round's fit
+    (normalise 1 + fit_model 30 steps before it); the second round, the actor fits,
+    DAgger, warm-up and RL are off."""
+    _, metrics, _, _, _ = mcp_population
+    assert_gate_covers_play(metrics, TINY_MCP.chunk_steps)
+    schedule = mcp_functions[0].schedule
+    before = phases.offline_before(schedule)
+    np.testing.assert_array_equal(before[:6], [0, 0, 1, 31, 31, 61])
+    np.testing.assert_array_equal(metrics["gate"][0], before < TINY_MCP.chunk_steps)
+    np.testing.assert_array_equal(metrics["gate"][-1], [False] * 11 + [True])
 
 
 # ---- configuration and bad input ------------------------------------------------------
