@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from advisor_jax.agent import networks
 from advisor_jax.agent.config import HParams, parse_agent
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
@@ -225,7 +226,11 @@ def main() -> None:
                         help="learner precisions to time (AgentConfig.precision)")  # fmt: skip
     parser.add_argument("--reference", type=Path, metavar="TREE",
                         help="also run this checkout's benchmark and compare")  # fmt: skip
+    parser.add_argument("--bias-in-gemm", action="store_true",
+                        help="hidden layers add their bias inside the matmul "
+                             "(networks.BIAS_IN_GEMM); not passed to --reference")  # fmt: skip
     args = parser.parse_args()
+    networks.BIAS_IN_GEMM = networks.BIAS_IN_GEMM or args.bias_in_gemm
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
@@ -276,7 +281,7 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        rows=rows,
+        bias_in_gemm=networks.BIAS_IN_GEMM, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
     )  # fmt: skip
@@ -294,7 +299,12 @@ def main() -> None:
         "",
         f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
-        "updates per jitted call (replay sampling + critic step + delayed actor step).",
+        "updates per jitted call (replay sampling + critic step + delayed actor step)"
+        + (
+            "; hidden layers with the bias in the matmul (networks.BIAS_IN_GEMM)."
+            if networks.BIAS_IN_GEMM
+            else "."
+        ),
         "",
         f"Device: {device}, {result['date']}. Ceilings measured in the same process: "
         + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
@@ -309,7 +319,8 @@ def main() -> None:
         before = {r["agents"]: r["agent_updates_per_s"] for r in reference["rows"]}
         lines += [
             "",
-            f"Against `{args.reference}` (run in the same command, same options, fp32):",
+            f"Against `{args.reference}` (run in the same command, same options, fp32"
+            + (", without --bias-in-gemm):" if args.bias_in_gemm else "):"),
             "",
             *common.markdown_table(
                 ("precision", "agents", "reference agent-updates/s", "this tree", "speed-up"),

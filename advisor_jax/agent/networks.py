@@ -18,6 +18,10 @@ critic's Q) always compute in fp32.
 
 Parameter layout (what ``export`` writes): ``{"params": {"hidden_0": {"kernel": [in, out],
 "bias": [out]}, ..., "head": {...}}}`` for the actor, kernels in flax ``(in, out)`` order.
+
+``bias_in_gemm`` (off by default, ``BIAS_IN_GEMM``): the hidden layers add their bias inside
+the matmul (the "bias row": ``[x, 1] @ [[K], [b]]``, see ``affine``); the parameters and
+their layout are those of a plain ``nn.Dense`` either way, only the arithmetic changes.
 """
 
 from __future__ import annotations
@@ -34,18 +38,109 @@ from advisor_jax.contract import spec
 
 he_init = nn.initializers.he_normal()
 
+BIAS_IN_GEMM = False
+"""Default of ``make_actor``/``make_critic``'s ``bias_in_gemm``, read when they are called:
+set it before building a learner to time or train either arithmetic in one process (a
+module built with the other value traces and compiles apart). Off until its GPU speed is
+measured: it changes fixed-seed trajectories (fp32 rounding), and with it the short
+two-seed CPU run of ``tests/train/test_run.py`` leaves seed 0 at 12 % success, below the
+20 % of the best untrained actor (the suite's XLA flags); over 16 seeds of that run the
+success is unchanged (paired difference -0.7 ± 10 points)."""
+
+K_ALIGN = 8
+"""The bias row's matmul pads its contraction dimension with zeros to a multiple of this."""
+
+
+def affine(
+    xs: Sequence[jax.Array],
+    kernels: Sequence[jax.Array],
+    bias: jax.Array,
+    dtype: Any,
+    bias_in_gemm: bool = False,
+    k_align: int = K_ALIGN,
+) -> jax.Array:
+    """``sum_i xs[i] @ kernels[i] + bias`` in ``dtype``; with ``bias_in_gemm`` as one matmul.
+
+    Why: under ``vmap`` (a population of agents, twin critics) the bias of a layer is
+    ``[agents, out]``, not one vector, and XLA's GPU GEMM rewriter fuses only a bias shared
+    by the whole batched GEMM into cuBLASLt's bias epilogue (``FuseVectorBiasAdd`` in
+    ``xla/service/gpu/transforms/gemm_rewriter.cc`` refuses a bias whose rank is not the
+    GEMM's number of output-column dimensions, 1; cuBLASLt is never given a bias batch
+    stride). Every hidden layer then ran its bias add as a separate pass over the
+    ``[agents, batch, width]`` activations, its ReLU as another (the rewriter fuses a ReLU
+    only into a GEMM whose output the maximum reads directly), and the backward summed
+    the bias gradient over the batch in a third. On an H100 at 128 agents (ATD3+AfDP,
+    paper sizes) these took 14.6 % (bias add), 14.3 % (ReLU) and 7.3 % (bias gradient) of
+    the update's GPU time, while all 22 GEMMs ran with ``"epilogue":"DEFAULT"``
+    (``results/profile_learner_ops.md``, ``results/profile_learner.md``).
+
+    How: the bias is one more row of the weights and the input one more column of ones,
+    ``concat([x..., 1]) @ concat([K..., b])``: the GEMM writes ``x @ K + b`` itself, and the
+    bias gradient comes out of the weight-gradient GEMM as that row (the sum over the batch
+    of the output gradient). Several ``(x_i, K_i)`` (the critic's state and action blocks)
+    become one matmul over the concatenated inputs.
+
+    The cost: the contraction dimension grows by the ones column, padded with zero columns
+    to a multiple of ``k_align`` (a K of 1002 ran the critic's join layer at 78 instead of
+    142 TFLOP/s on an H100, commit 64b908c), so 1000 -> 1008, 500 -> 504, 600 -> 608,
+    20 -> 24; the augmented weights ``[K + pad, out]`` are concatenated on every call (the
+    parameters keep their own layout), and the augmented input is a concatenation too
+    (fused with the ReLU that produces it, where XLA can). The bias also goes through the
+    GEMM's arithmetic: on a GPU at fp32 with JAX's default matmul precision (TF32) it is
+    rounded like the weights, in bf16 it is added in the fp32 accumulator. On a CPU the
+    results match ``x @ K + b`` to fp32 rounding, not bit for bit (another summation order).
+
+    ``bias_in_gemm=False`` computes what ``nn.Dense`` does (``lax.dot_general`` per block,
+    then ``+ bias``), the same operations in the same order.
+    """
+    xs = [x.astype(dtype) for x in xs]
+    kernels = [k.astype(dtype) for k in kernels]
+    bias = bias.astype(dtype)
+    if not bias_in_gemm:
+        y = None
+        for x, k in zip(xs, kernels, strict=True):
+            xk = jax.lax.dot_general(x, k, (((x.ndim - 1,), (0,)), ((), ())))
+            y = xk if y is None else y + xk
+        return y + jnp.reshape(bias, (1,) * (y.ndim - 1) + (-1,))
+    lead = xs[0].shape[:-1]
+    n_in = sum(x.shape[-1] for x in xs) + 1
+    pad = -n_in % k_align
+    x_aug = jnp.concatenate(
+        [*xs, jnp.ones((*lead, 1), dtype), jnp.zeros((*lead, pad), dtype)], axis=-1
+    )
+    w_aug = jnp.concatenate([*kernels, bias[None], jnp.zeros((pad, bias.shape[-1]), dtype)], axis=0)
+    return jax.lax.dot_general(x_aug, w_aug, (((x_aug.ndim - 1,), (0,)), ((), ())))
+
+
+class Dense(nn.Module):
+    """``nn.Dense`` (He kernel, zero bias, same parameter names, shapes and initial values);
+    with ``bias_in_gemm`` the bias is added inside the matmul (``affine``)."""
+
+    features: int
+    dtype: Any = jnp.float32  # compute precision; parameters stay fp32
+    bias_in_gemm: bool = False
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", he_init, (x.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
+        return affine([x], [kernel], bias, self.dtype, self.bias_in_gemm)
+
 
 class Actor(nn.Module):
     """Deterministic policy π(s; φ) → (V, ω)."""
 
     hidden: Sequence[int] = (600, 300)
     dtype: Any = jnp.float32  # compute precision of the hidden layers (module docstring)
+    bias_in_gemm: bool = False  # hidden layers add their bias in the matmul (``affine``)
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         x = obs
         for i, width in enumerate(self.hidden):
-            dense = nn.Dense(width, kernel_init=he_init, dtype=self.dtype, name=f"hidden_{i}")
+            dense = Dense(
+                width, dtype=self.dtype, bias_in_gemm=self.bias_in_gemm, name=f"hidden_{i}"
+            )
             x = nn.relu(dense(x))
         head = nn.Dense(spec.ACTION_SIZE, kernel_init=he_init, dtype=jnp.float32, name="head")
         logits = head(x)
@@ -62,10 +157,15 @@ class JoinDense(nn.Module):
     H100 when it was introduced, commit 64b908c), and, stored apart, neither block is
     sliced out of the whole on every call (on an H100 a copy of the [1000, 500] block per
     critic and call, 2.8 % of an update at 128 agents; results/profile_learner_ops.md).
+
+    With ``bias_in_gemm`` (``affine``) the two blocks and the bias are one matmul,
+    ``[x, a, 1, 0…] @ [K_x; K_a; b; 0…]`` with K = 1008 (1000 + 2 + 1, padded to a multiple
+    of 8), which also removes the separate add of ``a @ K_a``.
     """
 
     features: int
     dtype: Any = jnp.float32
+    bias_in_gemm: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array, a: jax.Array) -> jax.Array:
@@ -77,10 +177,9 @@ class JoinDense(nn.Module):
 
         kernel = self.param("kernel", init)
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
-        x, a, k_x, k_a, bias = (
-            v.astype(self.dtype) for v in (x, a, kernel["state"], kernel["action"], bias)
+        return affine(
+            [x, a], [kernel["state"], kernel["action"]], bias, self.dtype, self.bias_in_gemm
         )
-        return x @ k_x + a @ k_a + bias
 
 
 class Critic(nn.Module):
@@ -89,12 +188,16 @@ class Critic(nn.Module):
     state_hidden: int = 1000
     hidden: Sequence[int] = (500, 600)
     dtype: Any = jnp.float32  # compute precision of the hidden layers (module docstring)
+    bias_in_gemm: bool = False  # hidden layers add their bias in the matmul (``affine``)
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-        dense = partial(nn.Dense, kernel_init=he_init, dtype=self.dtype)
+        dense = partial(Dense, dtype=self.dtype, bias_in_gemm=self.bias_in_gemm)
         x = nn.relu(dense(self.state_hidden, name="state")(obs))
-        x = nn.relu(JoinDense(self.hidden[0], dtype=self.dtype, name="hidden_0")(x, action))
+        join = JoinDense(
+            self.hidden[0], dtype=self.dtype, bias_in_gemm=self.bias_in_gemm, name="hidden_0"
+        )
+        x = nn.relu(join(x, action))
         for i, width in enumerate(self.hidden[1:], start=1):
             x = nn.relu(dense(width, name=f"hidden_{i}")(x))
         return nn.Dense(1, kernel_init=he_init, dtype=jnp.float32, name="q")(x)[..., 0]
@@ -104,22 +207,31 @@ PRECISIONS = {"fp32": jnp.float32, "bf16": jnp.bfloat16}
 """``AgentConfig.precision`` → compute dtype of the hidden layers."""
 
 
-def make_actor(hidden: Sequence[int], precision: str = "fp32") -> Actor:
+def make_actor(
+    hidden: Sequence[int], precision: str = "fp32", bias_in_gemm: bool | None = None
+) -> Actor:
     """The one policy factory: π(s; φ) with these hidden widths (``AgentConfig.actor_hidden``).
 
     Training, evaluation, export and the CLI all build their actor here, so the widths are
     always a tuple of ints (a list would make another, unequal module). ``precision`` is
     the learner's (``AgentConfig.precision``); everything that acts (data collection,
-    evaluation, export) uses the fp32 default on the same parameters."""
-    return Actor(hidden=tuple(int(w) for w in hidden), dtype=PRECISIONS[precision])
+    evaluation, export) uses the fp32 default on the same parameters. ``bias_in_gemm``:
+    ``affine``; None takes ``BIAS_IN_GEMM``."""
+    return Actor(
+        hidden=tuple(int(w) for w in hidden),
+        dtype=PRECISIONS[precision],
+        bias_in_gemm=BIAS_IN_GEMM if bias_in_gemm is None else bool(bias_in_gemm),
+    )
 
 
-def make_critic(cfg, precision: str = "fp32") -> Critic:
-    """Q(s, a; θ) at ``cfg``'s (an ``AgentConfig``'s) widths and the given precision."""
+def make_critic(cfg, precision: str = "fp32", bias_in_gemm: bool | None = None) -> Critic:
+    """Q(s, a; θ) at ``cfg``'s (an ``AgentConfig``'s) widths and the given precision
+    (``bias_in_gemm``: as ``make_actor``)."""
     return Critic(
         state_hidden=cfg.critic_state_hidden,
         hidden=tuple(cfg.critic_hidden),
         dtype=PRECISIONS[precision],
+        bias_in_gemm=BIAS_IN_GEMM if bias_in_gemm is None else bool(bias_in_gemm),
     )
 
 
