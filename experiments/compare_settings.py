@@ -69,8 +69,13 @@ def side_stats(row: dict, analysed: list[dict], level: float) -> dict:
         q_bound=analysed[0]["q_bound"] if analysed else None,
         device=row["summary"]["device"],
         created=row["summary"]["created"][:10],
-        command=row["command"],
+        commands=row["commands"],
     )
+
+
+def analysed(row: dict, thresholds) -> list[dict]:
+    """``afp_collapse.analyse_run`` of every run of a (pooled) Table 1 row."""
+    return [a for d in row["dirs"] for a in afp_collapse.analyse_run(d, thresholds)]
 
 
 def compare(treatment_root: Path, control_root: Path, level: float) -> list[dict]:
@@ -85,7 +90,7 @@ def compare(treatment_root: Path, control_root: Path, level: float) -> list[dict
         if c is None:
             continue
         sides = {
-            name: side_stats(row, afp_collapse.analyse_run(row["dir"], thresholds), level)
+            name: side_stats(row, analysed(row, thresholds), level)
             for name, row in (("treatment", t), ("control", c))
         }
         out.append(
@@ -170,7 +175,7 @@ def markdown(rows: list[dict], args, where: dict) -> list[str]:
     devices = sorted(
         {f"{r[s]['device']} ({r[s]['created']})" for r in rows for s in ("treatment", "control")}
     )
-    commands = [r[s]["command"] for s in ("treatment", "control") for r in rows if r[s]["command"]]
+    commands = [c for s in ("treatment", "control") for r in rows for c in r[s]["commands"]]
     level = 100 * args.advisor_level
     bound = rows[0]["treatment"]["q_bound"]
     return [

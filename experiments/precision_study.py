@@ -34,16 +34,27 @@ from advisor_jax.training.reporting import mean_ci95
 ROOT = Path(__file__).resolve().parents[1]
 AFP = "results/afp_collapse/run_data"
 OWN = "results/precision_study/run_data"
+T1 = "results/table1_stable/run_data"
 STUDY: dict[str, dict[str, list[tuple[str, dict]]]] = {
     # agent (preset): precision: [(run directory, hyperparameters of its agents to take)]
+    # Today's `stable` (the Q̂ clip on): the fp32 runs are Table 1's.
     "ATD3+AfDP (stable)": {
+        "fp32": [(f"{T1}/ATD3_AfDP", {})],
+        "bf16": [(f"{OWN}/atd3_afdp_stable_q_clip_bf16_seeds0-15", {})],
+    },
+    "DDPG (stable)": {
+        "fp32": [(f"{T1}/DDPG", {})],
+        "bf16": [(f"{OWN}/ddpg_stable_bf16_q_clip_seeds0-15", {})],
+    },
+    # `stable` before it clipped the TD target (clip_q_target = 0).
+    "ATD3+AfDP (stable, no Q̂ clip)": {
         "fp32": [
             (f"{AFP}/scalefree-clip_beta0.3-1_seeds0-7", {"beta": 1.0}),
             (f"{AFP}/clip-beta1_literal-vs-scalefree_seeds8-15", {"beta_normalize": 1.0}),
         ],
         "bf16": [(f"{OWN}/atd3_afdp_stable_bf16_seeds0-15", {})],
     },
-    "DDPG (stable)": {
+    "DDPG (stable, no Q̂ clip)": {
         "fp32": [(f"{OWN}/ddpg_stable_fp32_seeds0-15", {})],
         "bf16": [(f"{OWN}/ddpg_stable_bf16_seeds0-15", {})],
     },
@@ -142,10 +153,14 @@ def plot(path: Path, rows: list[dict]) -> None:
 
     from advisor_jax.training.plots import save_png
 
-    fig, axes = plt.subplots(1, len(rows) * len(ARENAS), figsize=(3.2 * len(rows) * 2, 3.6),
+    per_line = 2 * len(ARENAS)  # two agent rows per line of panels
+    lines = -(-len(rows) * len(ARENAS) // per_line)
+    fig, axes = plt.subplots(lines, per_line, figsize=(3.2 * per_line, 3.6 * lines),
                              sharey=True, squeeze=False)  # fmt: skip
+    for ax in axes.flat[len(rows) * len(ARENAS) :]:
+        ax.set_visible(False)
     for j, (row, arena) in enumerate((r, a) for r in rows for a in ARENAS):
-        ax = axes[0, j]
+        ax = axes[j // per_line, j % per_line]
         a, b = 100 * np.array(row[arena]["fp32"]), 100 * np.array(row[arena]["bf16"])
         for x, y in zip(a, b, strict=True):
             ax.plot([0, 1], [x, y], color="0.75", lw=0.8)
@@ -158,7 +173,8 @@ def plot(path: Path, rows: list[dict]) -> None:
         ax.set_xticks([0, 1], ["fp32", "bf16"])
         ax.set_xlim(-0.4, 1.5)
         ax.set_title(f"{row['agent']}\n{arena}", fontsize=9)
-    axes[0, 0].set_ylabel("evaluation success % (per seed, paired)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("evaluation success % (per seed, paired)")
     fig.tight_layout()
     save_png(fig, path)
     plt.close(fig)
@@ -225,9 +241,11 @@ def main() -> None:
         "",
         "![per-seed success, fp32 and bf16, paired](precision_study.png)",
         "",
-        "Runs (preset `stable` as it was before it clipped the TD target, i.e. at "
-        "`clip_q_target=0`; 500 episodes, NVIDIA H100; the fp32 ATD3+AfDP runs are issue "
-        "16's):",
+        "Runs (500 episodes). `stable` rows: today's preset, which clips the TD target "
+        "(the fp32 runs are Table 1's, on an H200; the bf16 runs on an H100). `no Q̂ clip` "
+        "rows: `stable` as it was before, at `clip_q_target=0` (all on an H100; the fp32 "
+        "ATD3+AfDP runs are issue 16's). A seed's initial networks and episodes do not "
+        "depend on the GPU; the arithmetic's last bits do.",
         "",
         *commands,
         "",

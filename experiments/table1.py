@@ -43,8 +43,11 @@ PAPER_TABLE1 = {  # success, training / validation environment (paper Table 1)
     "ADDPG+AfP": (84.5, 83.0),
     "ADDPG+AfDP": (88.1, 85.2),
     "ATD3+AfDP": (90.8, 89.4),
+    "LfD": (80.2, 80.7),
+    "MCP+MF": (82.3, 80.1),
 }
-ORDER = (*PAPER_AGENTS, "TD3", "ATD3", "ATD3+AfD")
+BASELINES = ("LfD", "MCP+MF")  # issue 19: the paper's two other ways of using prior knowledge
+ORDER = (*PAPER_AGENTS, *BASELINES, "TD3", "ATD3", "ATD3+AfD")
 ARENAS = ("training", "validation")
 BLOCK = 50  # training episodes per column of the learning table
 # The paper's claims as (better, worse) pairs: its Table 1 ordering, adjacent rows, then the
@@ -57,6 +60,9 @@ PAPER_ORDERING = (
     ("ADDPG", "DDPG"),
 )
 AFP_EFFECTS = (("ADDPG+AfP", "ADDPG"), ("ADDPG+AfDP", "ADDPG+AfD"), ("ATD3+AfDP", "ATD3+AfD"))
+# §6.2: "ATD3 + AfDP outperforms all other algorithms by a significant margin", the
+# baselines included.
+OVER_BASELINES = tuple(("ATD3+AfDP", b) for b in BASELINES)
 
 
 def train(args) -> None:
@@ -93,12 +99,16 @@ def _fmt(mean: float, half: float) -> str:
 
 
 def load_table(root: Path) -> list[dict]:
-    """The finished agent types under ``root`` (one run directory each), in Table 1's
-    order: name, run dir, run.json, settings, per-seed success per arena (0..1)."""
+    """The finished agent types under ``root``, in Table 1's order: name, run dirs,
+    run.json, settings, per-seed success per arena (0..1).
+
+    Runs of one agent type at the same settings are one row with the seeds of all of them
+    (e.g. seeds 0-15 and 16-31 trained as two populations); the same seed twice is an
+    error. The same type at different settings gives a row per setting."""
     runs, notes = common.finished_runs(root)
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
-    rows = []
+    pooled: dict[tuple[str, str], dict] = {}
     for run_dir, summary in runs:
         agent = summary["agent"]
         settings = [common.preset_differences(summary, row) for row in summary["agents"]]
@@ -106,29 +116,50 @@ def load_table(root: Path) -> list[dict]:
             sys.exit(f"{run_dir}: its agents differ in more than the seed; not a Table 1 row")
         ev = summary["evaluation"]
         seeds = [row["seed"] for row in summary["agents"]]
-        by_seed = {
-            a: {s: v for s, v in zip(seeds, ev[a]["success"], strict=True) if v is not None}
-            for a in ARENAS
-            if a in ev
-        }
-        success = {a: list(values.values()) for a, values in by_seed.items()}
         command_file = run_dir / "command.json"  # written beside runs made on the device tool
         command = (summary.get("table1") or {}).get("command") or (
             json.loads(command_file.read_text()).get("command") if command_file.exists() else None
         )
-        rows.append(
+        key = (agent, json.dumps(settings[0], sort_keys=True))
+        row = pooled.setdefault(
+            key,
             {
                 "agent": agent,
-                "dir": run_dir,
+                "dir": run_dir,  # the first run; "dirs" holds every run of the row
                 "summary": summary,
                 "settings": settings[0],
-                "success": success,
-                "by_seed": by_seed,
                 "command": command,
                 "rank": ORDER.index(agent) if agent in ORDER else len(ORDER),
-            }
-        )
+                "dirs": [], "summaries": [], "commands": [], "seeds": [],
+                "by_seed": {a: {} for a in ARENAS if a in ev},
+                "collision_speed": [], "diverged": 0,
+            },
+        )  # fmt: skip
+        if twice := sorted(set(seeds) & set(row["seeds"])):
+            sys.exit(f"{run_dir}: seeds {twice} of {agent} are also in {row['dirs']}")
+        row["dirs"].append(run_dir)
+        row["summaries"].append(summary)
+        row["commands"] += [command] if command else []
+        row["seeds"] += seeds
+        row["diverged"] += len(summary.get("diverged", []))
+        row["collision_speed"] += [v for v in ev["training"]["collision_speed"] if v is not None]
+        for a, by_seed in row["by_seed"].items():
+            by_seed.update(
+                {s: v for s, v in zip(seeds, ev[a]["success"], strict=True) if v is not None}
+            )
+    rows = list(pooled.values())
+    for row in rows:
+        row["success"] = {a: list(values.values()) for a, values in row["by_seed"].items()}
     return sorted(rows, key=lambda r: (r["rank"], r["agent"]))
+
+
+def row_metrics(row: dict, key: str) -> np.ndarray | None:
+    """``key`` of metrics.npz for every agent of a (pooled) row, runs stacked on the agent
+    axis; None if a run has no metrics.npz."""
+    files = [d / "metrics.npz" for d in row["dirs"]]
+    if not all(f.exists() for f in files):
+        return None
+    return np.concatenate([np.load(f)[key] for f in files], axis=0)
 
 
 def _settings_text(settings: dict) -> str:
@@ -146,6 +177,14 @@ def _settings_text(settings: dict) -> str:
         + (f", {hp}" if hp else ", the preset's hyperparameters")
         + (" (the paper's Eq. 2 as printed)" if literal else "")
     )
+
+
+def _own_settings(settings: dict, shared: dict) -> str:
+    """A row's settings beyond those ``shared`` by its table (all of them if none are)."""
+    if not shared:
+        return _settings_text(settings)
+    own = {k: v for k, v in settings.items() if shared.get(k, object()) != v}
+    return ", ".join(f"{k}={common.setting_text(v)}" for k, v in own.items()) or "–"
 
 
 def paired_difference(better: dict, worse: dict, arena: str) -> dict | None:
@@ -170,7 +209,9 @@ def comparisons(rows: list[dict]) -> list[dict]:
     """The paper's ordering and the AfP effects that these rows can test, both arenas."""
     by_agent = {r["agent"]: r for r in rows}
     out = []
-    for kind, pairs in (("ordering", PAPER_ORDERING), ("AfP effect", AFP_EFFECTS)):
+    claims = (("ordering", PAPER_ORDERING), ("AfP effect", AFP_EFFECTS),
+              ("over baseline", OVER_BASELINES))  # fmt: skip
+    for kind, pairs in claims:
         for better, worse in pairs:
             if better in by_agent and worse in by_agent:
                 diffs = {a: paired_difference(by_agent[better], by_agent[worse], a) for a in ARENAS}
@@ -221,8 +262,9 @@ def _where_text(rows: list[dict]) -> str:
     each (device, date) with the agent types trained there."""
     where: dict[tuple[str, str], list[str]] = {}
     for r in rows:
-        key = (r["summary"]["device"], r["summary"]["created"][:10])
-        where.setdefault(key, []).append(r["agent"])
+        for summary in r["summaries"]:
+            agents = where.setdefault((summary["device"], summary["created"][:10]), [])
+            agents += [] if r["agent"] in agents else [r["agent"]]
     if len(where) == 1:
         (device, date), _ = where.popitem()
         return f"device {device}, trained {date}"
@@ -231,12 +273,38 @@ def _where_text(rows: list[dict]) -> str:
     )
 
 
+def _rows_from_lines(rows: list[dict], root: Path) -> list[str]:
+    moved = [r for r in rows if r.get("from")]
+    return [
+        f"{r['agent']}: the runs under `{r['from']}` ({_settings_text(r['settings'])}), in "
+        f"place of those under `{root}`."
+        for r in moved
+    ] + ([""] if moved else [])
+
+
+def _seeds_text(rows: list[dict]) -> str:
+    """The rows' seeds: one list when they share it, else the most common list and the
+    rows that have others (a pooled row with more seeds, say)."""
+    sets = [tuple(sorted(r["seeds"])) for r in rows]
+    common_set = max(set(sets), key=sets.count)
+    others = [f"{r['agent']}: {_span(s)}" for r, s in zip(rows, sets, strict=True)
+              if s != common_set]  # fmt: skip
+    return _span(common_set) + (f" ({'; '.join(others)})" if others else "")
+
+
+def _span(seeds: tuple[int, ...]) -> str:
+    """``0-15`` for a run of consecutive seeds, else the list."""
+    if len(seeds) > 2 and list(seeds) == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return str(list(seeds))
+
+
 def _learning_lines(rows: list[dict]) -> list[str]:
     """Training success per block of ``BLOCK`` episodes, mean over seeds (metrics.npz
     ``outcome``): when each agent type learns, which the final evaluation does not show
     (the advisor's jump start in data collection, say, and what follows it)."""
-    found = [(r["agent"], np.load(r["dir"] / "metrics.npz")["outcome"]) for r in rows
-             if (r["dir"] / "metrics.npz").exists()]  # fmt: skip
+    outcomes = [(r["agent"], row_metrics(r, "outcome")) for r in rows]
+    found = [(agent, outcome) for agent, outcome in outcomes if outcome is not None]
     if not found:
         return []
     n = max(outcome.shape[1] for _, outcome in found)
@@ -262,28 +330,30 @@ def _learning_lines(rows: list[dict]) -> list[str]:
 def _table_lines(rows: list[dict], root: Path) -> list[str]:
     first = rows[0]["summary"]
     distinct = {json.dumps(r["settings"], sort_keys=True) for r in rows}
-    settings = (
-        _settings_text(rows[0]["settings"])
-        if len(distinct) == 1
-        else "per row (see the settings column)"
-    )
+    shared = {k: v for k, v in rows[0]["settings"].items()
+              if all(r["settings"].get(k) == v for r in rows)}  # fmt: skip
+    if len(distinct) == 1:
+        settings = _settings_text(rows[0]["settings"])
+    elif {"preset", "episodes"} <= set(shared):  # the column names what a row adds
+        settings = _settings_text(shared) + "; a row's own settings in its settings column"
+    else:
+        settings, shared = "per row (see the settings column)", {}
     table = []
     for r in rows:
-        ev = r["summary"]["evaluation"]
         cells = [_fmt(*mean_ci95([100 * v for v in r["success"][a]])) for a in ARENAS]
-        speed = [v for v in ev["training"]["collision_speed"] if v is not None]
+        speed = r["collision_speed"]
         paper = PAPER_TABLE1.get(r["agent"])
-        diverged = len(r["summary"].get("diverged", []))
+        diverged = r["diverged"]
         below = sum(v < common.ADVISOR_LEVEL for v in r["success"].get("training", []))
         table.append(
             (
                 r["agent"],
-                f"{len(r['summary']['agents'])}" + (f" ({diverged} diverged)" if diverged else ""),
+                f"{len(r['seeds'])}" + (f" ({diverged} diverged)" if diverged else ""),
                 *cells,
                 f"{below}",
                 _fmt(*mean_ci95(speed)) if speed else "–",
                 f"{paper[0]:.1f} / {paper[1]:.1f}" if paper else "–",
-                _settings_text(r["settings"]) if len(distinct) > 1 else "",
+                _own_settings(r["settings"], shared) if len(distinct) > 1 else "",
             )
         )
     header = [
@@ -302,13 +372,14 @@ def _table_lines(rows: list[dict], root: Path) -> list[str]:
     return [
         f"## `{root}`: {settings}",
         "",
-        f"Seeds {[a['seed'] for a in first['agents']]}; {_where_text(rows)}; evaluation: "
+        f"Seeds {_seeds_text(rows)}; {_where_text(rows)}; evaluation: "
         "deterministic actor, "
         f"{first['evaluation']['training']['episodes']} episodes per arena, the same episodes "
         "for every agent type. Mean ± 95 % CI over seeds (%).",
         "",
         *common.markdown_table(header, table, align="lrrrrrrl"),
         "",
+        *_rows_from_lines(rows, root),
         *_comparison_lines(rows),
         *_learning_lines(rows),
     ]
@@ -353,12 +424,12 @@ def plot(tables: list[tuple[Path, list[dict]]], path: Path) -> None:
     curves = [fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[1, 1])]
     window = 1
     for r in tables[0][1]:
-        metrics = np.load(r["dir"] / "metrics.npz")
-        episodes = np.arange(1, metrics["outcome"].shape[1] + 1)
+        per_episode = [row_metrics(r, k) for k in ("reward_per_step", "collision_speed")]
+        if per_episode[0] is None:
+            continue
+        episodes = np.arange(1, per_episode[0].shape[1] + 1)
         window = max(1, min(150, len(episodes) // 5))
-        for c, values in zip(
-            curves, (metrics["reward_per_step"], metrics["collision_speed"]), strict=True
-        ):
+        for c, values in zip(curves, per_episode, strict=True):
             smooth = moving_average(values.astype(np.float64), window)
             with warnings.catch_warnings():  # no collision yet in a window: NaN, not a value
                 warnings.simplefilter("ignore", RuntimeWarning)
@@ -376,6 +447,19 @@ def plot(tables: list[tuple[Path, list[dict]]], path: Path) -> None:
     save_png(fig, path)
 
 
+def with_rows_from(rows: list[dict], source: Path) -> list[dict]:
+    """``rows`` with each agent type found under ``source`` in place of that type's row (or
+    added): the first table at its settings with one type trained at other ones, e.g.
+    ATD3+AfDP at policy delay 2. Each such row records ``source`` (``from``)."""
+    extra = load_table(source)
+    if not extra:
+        sys.exit(f"--rows-from {source}: no finished runs there")
+    replaced = {r["agent"] for r in extra}
+    kept = [r for r in rows if r["agent"] not in replaced]
+    merged = kept + [{**r, "from": source} for r in extra]
+    return sorted(merged, key=lambda r: (r["rank"], r["agent"]))
+
+
 def summarize(args) -> None:
     tables = []
     for root in args.runs:
@@ -383,9 +467,11 @@ def summarize(args) -> None:
         if not rows:
             sys.exit(f"no finished runs under {root}")
         tables.append((root, rows))
+    for source in getattr(args, "rows_from", None) or []:
+        tables[0] = (tables[0][0], with_rows_from(tables[0][1], source))
     main_rows = tables[0][1]
     record = {
-        "seeds": min(len(r["summary"]["agents"]) for r in main_rows),
+        "seeds": min(len(r["seeds"]) for r in main_rows),
         "agents": {
             r["agent"]: {
                 **{a: [round(v, 6) for v in r["success"][a]] for a in ARENAS},
@@ -404,8 +490,10 @@ def summarize(args) -> None:
     ]
     for root, rows in tables:
         lines += _table_lines(rows, root)
-    commands = [c for _, rows in tables for c in dict.fromkeys(r["command"] for r in rows) if c]
+    commands = list(dict.fromkeys(c for _, rows in tables for r in rows for c in r["commands"]))
     summarize_argv = ["summarize", "--runs", *args.runs, "--out", args.out]
+    if getattr(args, "rows_from", None):
+        summarize_argv[-2:-2] = ["--rows-from", *args.rows_from]
     lines += [
         "![per-seed success and learning curves](table1.png)",
         "",
@@ -423,7 +511,7 @@ def main() -> None:
     t = sub.add_parser("train")
     t.add_argument("--runs", type=Path, default=Path("runs/table1"))
     t.add_argument("--preset", default="paper")
-    t.add_argument("--agents", nargs="+", default=list(PAPER_AGENTS))
+    t.add_argument("--agents", nargs="+", default=[*PAPER_AGENTS, *BASELINES])
     t.add_argument("--episodes", type=int, default=0, help="N_total (0 = the preset's)")
     t.add_argument("--seeds", type=int, default=6)
     t.add_argument("--seed", type=int, default=0)
@@ -444,6 +532,15 @@ def main() -> None:
         nargs="+",
         default=[Path("runs/table1")],
         help="run folders; the first is table1.json's table",
+    )
+    s.add_argument(
+        "--rows-from",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="DIR",
+        help="runs whose agent types replace (or join) those of the first table, "
+        "e.g. one type trained at another setting",
     )
     s.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()

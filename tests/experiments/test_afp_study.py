@@ -354,3 +354,54 @@ def test_static_settings_that_differ_from_the_preset_are_named():
         "actor_hidden": (64, 64),
         "policy_delay": 2,
     }
+
+
+def test_table1_pools_runs_of_one_type_and_refuses_a_seed_twice(tmp_path):
+    """Seeds 0-2 and 3-5 of ATD3+AfDP trained as two runs are one row of six seeds; its
+    claim against a type with seeds 0-2 pairs those three; a seed in both runs is an error."""
+    root = tmp_path / "runs"
+    root.mkdir()
+    _fake_run(root, "ATD3+AfDP", 6, {}, [0, 1, 2], [0.9, 0.8, 0.7])
+    _fake_run(root, "ATD3+AfDP", 6, {}, [3, 4, 5], [0.6, 0.5, 0.4])
+    _fake_run(root, "LfD", 6, {}, [0, 1, 2], [0.5, 0.5, 0.5])
+    rows = table1.load_table(root)
+    assert [r["agent"] for r in rows] == ["ATD3+AfDP", "LfD"]
+    pooled = rows[0]
+    assert sorted(pooled["seeds"]) == [0, 1, 2, 3, 4, 5] and len(pooled["dirs"]) == 2
+    assert sorted(pooled["success"]["training"]) == pytest.approx([0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
+    assert table1.row_metrics(pooled, "outcome").shape == (6, 6)
+    (claim,) = table1.comparisons(rows)  # §6.2: ATD3+AfDP over the baselines
+    assert (claim["kind"], claim["better"], claim["worse"]) == ("over baseline", "ATD3+AfDP", "LfD")
+    assert claim["training"]["seeds"] == 3 and claim["training"]["mean"] == pytest.approx(30.0)
+    out = tmp_path / "out"
+    table1.summarize(argparse.Namespace(runs=[root], out=out))
+    record = json.loads((out / "table1.json").read_text())
+    assert record["seeds"] == 3 and len(record["agents"]["ATD3+AfDP"]["training"]) == 6
+    text = (out / "table1.md").read_text()
+    assert "Seeds 0-2 (ATD3+AfDP: 0-5)" in text and "| LfD | 3 |" in text
+    _fake_run(root, "ATD3+AfDP", 6, {}, [5, 6, 7], [0.6, 0.5, 0.4])
+    with pytest.raises(SystemExit, match=r"seeds \[5\] of ATD3\+AfDP"):
+        table1.load_table(root)
+
+
+def test_table1_rows_from_another_folder_replace_their_type(tmp_path):
+    """--rows-from: the first table keeps its other types; the type found there is taken
+    from there (its settings too), and the report says so."""
+    chosen, other = tmp_path / "chosen", tmp_path / "other"
+    for root in (chosen, other):
+        root.mkdir()
+    _fake_run(chosen, "ATD3+AfDP", 6, {}, [0, 1, 2], [0.5, 0.5, 0.5])
+    _fake_run(chosen, "ADDPG+AfDP", 6, {}, [0, 1, 2], [0.6, 0.6, 0.6])
+    _fake_run(other, "ATD3+AfDP", 6, {"beta": [2.0]}, [0, 1, 2], [0.9, 0.8, 0.9])
+    out = tmp_path / "out"
+    table1.summarize(argparse.Namespace(runs=[chosen], rows_from=[other], out=out))
+    record = json.loads((out / "table1.json").read_text())
+    assert record["agents"]["ATD3+AfDP"]["training"] == pytest.approx([0.9, 0.8, 0.9])
+    assert record["agents"]["ATD3+AfDP"]["settings"]["beta"] == 2.0
+    assert record["agents"]["ADDPG+AfDP"]["training"] == pytest.approx([0.6, 0.6, 0.6])
+    text = (out / "table1.md").read_text()
+    assert (
+        f"ATD3+AfDP: the runs under `{other}`" in text
+        and f"in place of those under `{chosen}`" in text
+    )
+    assert "--rows-from" in text  # the summarize command as run
