@@ -357,7 +357,7 @@ def plot(
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     step = (budgets[-1] - budgets[0]) / max(len(budgets) - 1, 1) if len(budgets) > 1 else 50
     width = 0.6 * step / max(len(rows), 1)
-    flagged = []
+    flagged, separate = [], []
     for i, r in enumerate(rows):
         color = colors[i % len(colors)]
         offset = (i - (len(rows) - 1) / 2) * width
@@ -366,10 +366,16 @@ def plot(
             common.seeds_with_ci(
                 left, n + offset, values, color, label=None if j else r["agent"], width=width * 0.6
             )
-            if values and no_rl(r, n):
-                left.annotate(NO_RL, (n + offset, max(values)), xytext=(0, 4),
+            marks = (NO_RL if values and no_rl(r, n) else "") + (
+                SEPARATE if values and n in r["separate"] else ""
+            )
+            if marks:
+                left.annotate(marks, (n + offset, max(values)), xytext=(0, 4),
                               textcoords="offset points", ha="center", color=color)  # fmt: skip
+            if NO_RL in marks:
                 flagged.append(r["agent"])
+            if SEPARATE in marks:
+                separate.append(r["agent"])
         paper = PAPER_TABLE2.get(r["agent"])
         if paper:
             left.plot(PAPER_BUDGETS, paper, ls=":", marker="x", color=color, lw=1)
@@ -381,12 +387,15 @@ def plot(
     left.grid(alpha=0.3)
     left.legend(fontsize=8, ncol=2, loc="lower right")
     left.set_title("Table 2: per-seed success (dots), mean ± 95 % CI", fontsize=10)
+    notes = []
     if flagged:
-        left.set_xlabel(
-            f"training episodes\n{NO_RL} {', '.join(dict.fromkeys(flagged))}: prior-knowledge "
-            "phases only at this budget, no RL yet",
-            fontsize=9,
-        )
+        notes.append(f"{NO_RL} {', '.join(dict.fromkeys(flagged))}: prior-knowledge phases "
+                     "only at this budget, no RL yet")  # fmt: skip
+    if separate:
+        notes.append(f"{SEPARATE} {', '.join(dict.fromkeys(separate))}: a separate run of "
+                     "this many episodes")  # fmt: skip
+    if notes:
+        left.set_xlabel("training episodes\n" + "\n".join(notes), fontsize=9)
     names, ours, spreads, papers, counts = [], [], [], [], []
     entries = ([("Advisor", advisor)] if advisor else []) + [
         (r["agent"], r["collision"]) for r in rows
