@@ -1,6 +1,6 @@
 # issue 17: the largest paper-size training population that fits on one H100 (full step, default memory settings)
-python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl 2>/dev/null
-export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1
+# run from the repository root with the package importable and OUT set to an empty folder
+export PYTHONPATH=$PWD PYTHONUNBUFFERED=1
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 T0=$SECONDS
 try() {  # try PRECISION N -> rc
