@@ -37,7 +37,8 @@ OWN = "results/precision_study/run_data"
 T1 = "results/table1_stable/run_data"
 STUDY: dict[str, dict[str, list[tuple[str, dict]]]] = {
     # agent (preset): precision: [(run directory, hyperparameters of its agents to take)]
-    # Today's `stable` (the Q̂ clip on): the fp32 runs are Table 1's.
+    # Today's `stable` (the Q̂ clip on, ATD3's policy delay d = 4 as in the preset): the
+    # fp32 runs are results/table1_stable's (Table 1's ATD3+AfDP row is d = 2, not these).
     "ATD3+AfDP (stable)": {
         "fp32": [(f"{T1}/ATD3_AfDP", {})],
         "bf16": [(f"{OWN}/atd3_afdp_stable_q_clip_bf16_seeds0-15", {})],
@@ -241,11 +242,13 @@ def main() -> None:
         "",
         "![per-seed success, fp32 and bf16, paired](precision_study.png)",
         "",
-        "Runs (500 episodes). `stable` rows: today's preset, which clips the TD target "
-        "(the fp32 runs are Table 1's, on an H200; the bf16 runs on an H100). `no Q̂ clip` "
-        "rows: `stable` as it was before, at `clip_q_target=0` (all on an H100; the fp32 "
-        "ATD3+AfDP runs are issue 16's). A seed's initial networks and episodes do not "
-        "depend on the GPU; the arithmetic's last bits do.",
+        "Runs (500 episodes). `stable` rows: today's preset, which clips the TD target, "
+        "with ATD3's policy delay at the preset's d = 4 (the fp32 runs are those of "
+        "`results/table1_stable/run_data`, on an H200, not Table 1's d = 2 ATD3+AfDP row; "
+        "the bf16 runs on an H100). `no Q̂ clip` rows: `stable` as it was before, at "
+        "`clip_q_target=0` (all on an H100; the fp32 ATD3+AfDP runs are issue 16's). "
+        "A seed's initial networks and episodes do not depend on the GPU; the "
+        "arithmetic's last bits do.",
         "",
         *commands,
         "",
