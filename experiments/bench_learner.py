@@ -234,7 +234,8 @@ def main() -> None:
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
-                "--updates", str(args.updates), *(["--small"] if args.small else [])]  # fmt: skip
+                "--updates", str(args.updates), "--precision", *args.precision,
+                *(["--small"] if args.small else [])]  # fmt: skip
         print(f"reference: {args.reference}")
         reference = run_reference(args.reference, argv)
 
@@ -316,10 +317,13 @@ def main() -> None:
         "(cuBLAS GEMMs) and so changes with the kernels the autotuner picks; it is a lower bound.",
     ]
     if reference is not None:
-        before = {r["agents"]: r["agent_updates_per_s"] for r in reference["rows"]}
+        before = {
+            (r["agents"], r.get("precision", PRECISION_LABELS["fp32"])): r["agent_updates_per_s"]
+            for r in reference["rows"]
+        }
         lines += [
             "",
-            f"Against `{args.reference}` (run in the same command, same options, fp32"
+            f"Against `{args.reference}` (run in the same command, same options"
             + (", without --bias-in-gemm):" if args.bias_in_gemm else "):"),
             "",
             *common.markdown_table(
@@ -328,9 +332,9 @@ def main() -> None:
                     (
                         r["precision"],
                         r["agents"],
-                        before[r["agents"]],
+                        before[r["agents"], r["precision"]],
                         r["agent_updates_per_s"],
-                        r["agent_updates_per_s"] / before[r["agents"]],
+                        r["agent_updates_per_s"] / before[r["agents"], r["precision"]],
                     )
                     for r in rows
                 ],

@@ -74,6 +74,7 @@ from advisor_jax.agent.networks import (
     apply_critics,
     init_actor,
     init_critics,
+    inputs_per_critic_by_default,
     make_actor,
     make_critic,
 )
@@ -147,6 +148,10 @@ def make_learner(
     actor = make_actor(cfg.actor_hidden, cfg.precision)
     critic = make_critic(cfg, cfg.precision)
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
+    # One layout of the twins' shared inputs for all of this learner's critics, picked by
+    # its precision (networks.inputs_per_critic_by_default: a bf16 learner keeps the shared
+    # layout, its acting critic too, as measured).
+    per_critic = inputs_per_critic_by_default(critic)
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)
@@ -167,7 +172,7 @@ def make_learner(
         )
 
     def q_select(critic_params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
-        return jnp.min(apply_critics(critic_fp32, critic_params, obs, action), axis=0)
+        return jnp.min(apply_critics(critic_fp32, critic_params, obs, action, per_critic), axis=0)
 
     def critic_step(
         state: LearnerState, batch: Transition, key: jax.Array, hp: HParams
@@ -177,7 +182,9 @@ def make_learner(
             next_actions = smoothed_target_actions(
                 key, next_actions, hp.target_noise, hp.target_noise_clip
             )
-        next_q = apply_critics(critic, state.target_critic, batch.next_obs, next_actions)
+        next_q = apply_critics(
+            critic, state.target_critic, batch.next_obs, next_actions, per_critic
+        )
         targets = critic_targets(batch.reward, batch.terminal, next_q, hp.gamma)  # [n]
         clipped = jnp.zeros((), jnp.float32)
         if return_bounds is not None:
@@ -186,7 +193,7 @@ def make_learner(
             targets = bounded
 
         def loss_fn(params):
-            q = apply_critics(critic, params, batch.obs, batch.action)  # [n_critics, n]
+            q = apply_critics(critic, params, batch.obs, batch.action, per_critic)  # [n_critics, n]
             losses = critic_losses(q, targets)
             return jnp.sum(losses), (losses, q)
 
