@@ -49,7 +49,9 @@ bit-identical to today's fp32 results and that gain is far below issue 17's 2× 
 changes fixed-seed trajectories (fp32 rounding), and with it the short two-seed CPU run of
 ``tests/train/test_run.py`` leaves seed 0 at 12 % success, below the 20 % of the best
 untrained actor (the suite's XLA flags); over 16 seeds of that run the success is
-unchanged (paired difference -0.7 ± 10 points)."""
+unchanged (paired difference -0.7 ± 10 points). Since fp32 learners on GPUs give each twin
+critic its own inputs (``apply_critics``), the bias row on top of that is -1.4 %
+(``results/bench_learner_twin_inputs/with_bias_row/``)."""
 
 K_ALIGN = 8
 """The bias row's matmul pads its contraction dimension with zeros to a multiple of this."""
