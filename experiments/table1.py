@@ -125,10 +125,8 @@ def load_table(root: Path) -> list[dict]:
             key,
             {
                 "agent": agent,
-                "dir": run_dir,  # the first run; "dirs" holds every run of the row
                 "summary": summary,
                 "settings": settings[0],
-                "command": command,
                 "rank": ORDER.index(agent) if agent in ORDER else len(ORDER),
                 "dirs": [], "summaries": [], "commands": [], "seeds": [],
                 "by_seed": {a: {} for a in ARENAS if a in ev},
