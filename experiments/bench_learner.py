@@ -26,11 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
-import json
-import os
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import common
@@ -39,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax.agent import networks
+from advisor_jax.agent.compiler_options import compiler_options
 from advisor_jax.agent.config import HParams, parse_agent
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
@@ -115,7 +112,8 @@ def make_update_loop(cfg, n_updates: int):
         (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), jnp.arange(n_updates))
         return learner_state
 
-    return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0)
+    options = compiler_options(cfg.precision)  # training's chunk compiles with the same
+    return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)
 
 
 def time_update_loop(loop, states, replays, keys) -> tuple[float, float]:
@@ -178,26 +176,6 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     return rows
 
 
-def run_reference(tree: Path, argv: list[str]) -> dict:
-    """``experiments/bench_learner.py`` of the checkout ``tree``, run with ``argv`` (its own
-    --out added) in a subprocess whose imports resolve to ``tree``; returns its JSON."""
-    tree = tree.resolve()  # the subprocess runs in tree/experiments: a relative tree breaks
-    script = tree / "experiments" / "bench_learner.py"
-    if not script.exists():
-        raise SystemExit(f"--reference {tree}: no experiments/bench_learner.py there")
-    here = str(Path(__file__).resolve().parents[1])
-    paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    paths = [str(tree)] + [p for p in paths if Path(p).resolve() != Path(here)]
-    with tempfile.TemporaryDirectory() as out:
-        subprocess.run(
-            [sys.executable, str(script), *argv, "--out", out],
-            check=True,
-            env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
-            cwd=script.parent,
-        )
-        return json.loads((Path(out) / "bench_learner.json").read_text())
-
-
 def fill_replay(capacity: int, key) -> object:
     k1, k2, k3 = jax.random.split(key, 3)
     data = Transition(
@@ -237,7 +215,9 @@ def main() -> None:
                 "--updates", str(args.updates), "--precision", *args.precision,
                 *(["--small"] if args.small else [])]  # fmt: skip
         print(f"reference: {args.reference}")
-        reference = run_reference(args.reference, argv)
+        reference = common.run_reference(
+            args.reference, "bench_learner.py", argv, "bench_learner.json"
+        )
 
     cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
     where = common.provenance()

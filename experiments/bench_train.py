@@ -10,6 +10,10 @@ cost of data collection and bookkeeping.
     # several GPUs: the same populations on 1 and 2 devices, in one process
     python experiments/bench_train.py --agents 64 128 --devices 1 2 --name bench_multigpu
 
+``--reference TREE`` also runs the benchmark of another checkout (the commit before a speed
+change) in a subprocess of the same command, with the same options, and the table gives
+both side by side (``common.run_reference``).
+
 Writes ``results/<name>.md`` / ``.json`` (``--name``, default bench_train). With several
 ``--devices`` counts each population is timed on each, sharded as ``advisor-jax train
 --devices`` shards it (``advisor_jax.training.devices``), and the table gives the speed-up
@@ -71,6 +75,43 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
     )
 
 
+def reference_lines(rows: list[dict], reference: dict | None, tree: Path | None) -> list[str]:
+    """The table of this tree's rows against the same rows of ``--reference``'s run."""
+    if reference is None:
+        return []
+    before = {(r["agents"], r["devices"], r["precision"]): r for r in reference["rows"]}
+    pairs = [(r, before.get((r["agents"], r["devices"], r["precision"]))) for r in rows]
+    return [
+        "",
+        f"Against `{tree}` (run in the same command, same options):",
+        "",
+        *common.markdown_table(
+            (
+                "precision",
+                "agents",
+                "devices",
+                "reference agent env-steps/s",
+                "this tree",
+                "speed-up",
+            ),
+            [
+                (
+                    r["precision"],
+                    r["agents"],
+                    r["devices"],
+                    b["agent_steps_per_s"],
+                    r["agent_steps_per_s"],
+                    r["agent_steps_per_s"] / b["agent_steps_per_s"],
+                )
+                for r, b in pairs
+                if b is not None
+            ],
+            formats=("", "", "", ",.0f", ",.0f", ".2f"),
+            align="r",
+        ),  # fmt: skip
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="paper")
@@ -94,7 +135,19 @@ def main() -> None:
     )
     parser.add_argument("--name", default="bench_train", help="report file name")
     parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--reference", type=Path, metavar="TREE",
+                        help="also run this checkout's benchmark and compare")  # fmt: skip
     args = parser.parse_args()
+    reference = None
+    if args.reference:
+        argv = ["--preset", args.preset, "--agent", args.agent, "--agents", *map(str, args.agents),
+                "--chunk", str(args.chunk), "--repeats", str(args.repeats),
+                "--devices", *map(str, args.devices), "--precision", *args.precision,
+                "--name", args.name]  # fmt: skip
+        print(f"reference: {args.reference}")
+        reference = common.run_reference(
+            args.reference, "bench_train.py", argv, f"{args.name}.json"
+        )
 
     where = common.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
@@ -114,7 +167,16 @@ def main() -> None:
                     f"(x{rows[-1]['speedup']:.2f}), warm-up {rows[-1]['warmup_s']:.1f} s"
                 )
 
-    result = dict(**where, preset=args.preset, agent=args.agent, chunk=args.chunk, rows=rows)
+    if reference is not None:
+        reference = dict(tree=str(args.reference), rows=reference["rows"])
+    result = dict(
+        **where,
+        preset=args.preset,
+        agent=args.agent,
+        chunk=args.chunk,
+        rows=rows,
+        reference=reference,
+    )
     atomic_write_json(args.out / f"{args.name}.json", result)
     lines = [
         "# Training throughput (full step: env + advisor + selector + update)",
@@ -140,6 +202,7 @@ def main() -> None:
         ),
         "",
         "Speed-up: over the first device count, same population and precision.",
+        *reference_lines(rows, reference, args.reference),
         "",
         f"Command: `{common.command_line('experiments/bench_train.py', sys.argv[1:])}`",
     ]

@@ -171,6 +171,32 @@ def copy_ceiling(n_bytes: int, repeats: int = 5) -> float:
     return 2 * x.nbytes / seconds
 
 
+# -- the numbers before a change, measured in the same command ------------------------------
+
+
+def run_reference(tree: str | os.PathLike, script: str, argv: Sequence[str], report: str) -> dict:
+    """The JSON report ``report`` of ``experiments/<script>`` of the checkout ``tree`` (e.g.
+    the commit before a speed change: ``git worktree add /tmp/ref HEAD~1``, or on the device
+    an untracked copy of it, which the ``run`` tool carries), run with ``argv`` and its own
+    ``--out`` in a subprocess whose imports resolve to ``tree``: the previous numbers come
+    from the same machine and the same minute as the new ones."""
+    tree = Path(tree).resolve()  # the subprocess runs in tree/experiments: a relative tree breaks
+    path = tree / "experiments" / script
+    if not path.exists():
+        raise SystemExit(f"--reference {tree}: no experiments/{script} there")
+    here = Path(__file__).resolve().parents[1]
+    paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    paths = [str(tree)] + [p for p in paths if Path(p).resolve() != here]
+    with tempfile.TemporaryDirectory() as out:
+        subprocess.run(
+            [sys.executable, str(path), *argv, "--out", out],
+            check=True,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
+            cwd=path.parent,
+        )
+        return json.loads((Path(out) / report).read_text())
+
+
 # -- writing it down ------------------------------------------------------------------------
 
 

@@ -39,6 +39,16 @@ STUDY: dict[str, dict[str, list[tuple[str, dict]]]] = {
     # agent (preset): precision: [(run directory, hyperparameters of its agents to take)]
     # Today's `stable` (the Q̂ clip on, ATD3's policy delay d = 4 as in the preset): the
     # fp32 runs are results/table1_stable's (Table 1's ATD3+AfDP row is d = 2, not these).
+    # "cuBLAS": today's bf16 program (every GEMM on cuBLAS, twin inputs per critic; 2026-11-25).
+    "ATD3+AfDP (stable, cuBLAS)": {
+        "fp32": [(f"{T1}/ATD3_AfDP", {})],
+        "bf16": [(f"{OWN}/atd3_afdp_stable_cublas_bf16", {})],
+    },
+    "DDPG (stable, cuBLAS)": {
+        "fp32": [(f"{T1}/DDPG", {})],
+        "bf16": [(f"{OWN}/ddpg_stable_cublas_bf16", {})],
+    },
+    # The bf16 program before (XLA's Triton GEMMs, twin inputs shared; 2026-11-24).
     "ATD3+AfDP (stable)": {
         "fp32": [(f"{T1}/ATD3_AfDP", {})],
         "bf16": [(f"{OWN}/atd3_afdp_stable_q_clip_bf16_seeds0-15", {})],
@@ -213,7 +223,9 @@ def main() -> None:
                 commands.append(
                     f"- `{run}`{picked}: `{info['command']}`, {info['device']}, "
                     f"{info['created'][:10]}, training {train_seconds[run]:.0f} s"
-                )
+                    + (" (side by side with another run on the GPU)"
+                       if "side by side" in info.get("machine", "") else "")
+                )  # fmt: skip
     lines = [
         "# fp32 vs bf16 learner: the same learning? (issue 17)",
         "",
@@ -245,7 +257,10 @@ def main() -> None:
         "Runs (500 episodes). `stable` rows: today's preset, which clips the TD target, "
         "with ATD3's policy delay at the preset's d = 4 (the fp32 runs are those of "
         "`results/table1_stable/run_data`, on an H200, not Table 1's d = 2 ATD3+AfDP row; "
-        "the bf16 runs on an H100). `no Q̂ clip` rows: `stable` as it was before, at "
+        "the bf16 runs on an H100). `cuBLAS` rows: today's bf16 program, every GEMM on "
+        "cuBLAS (`agent/compiler_options.py`) and the twin critics' inputs per critic; "
+        "the other bf16 rows ran XLA's Triton GEMMs with shared twin inputs. "
+        "`no Q̂ clip` rows: `stable` as it was before, at "
         "`clip_q_target=0` (all on an H100; the fp32 ATD3+AfDP runs are issue 16's). "
         "A seed's initial networks and episodes do not depend on the GPU; the "
         "arithmetic's last bits do.",

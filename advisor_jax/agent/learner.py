@@ -148,10 +148,9 @@ def make_learner(
     actor = make_actor(cfg.actor_hidden, cfg.precision)
     critic = make_critic(cfg, cfg.precision)
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
-    # One layout of the twins' shared inputs for all of this learner's critics, picked by
-    # its precision (networks.inputs_per_critic_by_default: a bf16 learner keeps the shared
-    # layout, its acting critic too, as measured).
-    per_critic = inputs_per_critic_by_default(critic)
+    # One layout of the twins' shared inputs for all of this learner's critics, its fp32
+    # acting critic too (networks.inputs_per_critic_by_default: per critic on GPUs).
+    per_critic = inputs_per_critic_by_default()
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)

@@ -256,21 +256,22 @@ def init_critics(critic: Critic, key: jax.Array, n_critics: int):
     return jax.vmap(critic.init, in_axes=(0, None, None))(keys, obs, act)
 
 
-def inputs_per_critic_by_default(critic: Critic, backend: str | None = None) -> bool:
-    """``apply_critics``'s layout when none is asked for: per critic for fp32 critics on
-    a GPU, shared otherwise (``backend``: JAX's default backend when None; other
-    accelerators are not measured).
+def inputs_per_critic_by_default(backend: str | None = None) -> bool:
+    """``apply_critics``'s layout when none is asked for: per critic on a GPU, shared
+    otherwise (``backend``: JAX's default backend when None; other accelerators are not
+    measured), whatever the critic's precision.
 
-    Measured on an H100 (ATD3+AfDP, paper sizes, 2026-11-24,
-    ``results/bench_learner_twin_inputs/``): fp32 per critic, +8.8 % agent-updates/s at 128
-    agents and +8.7 % agent env-steps/s at 64, no change at 1 agent. bf16 per critic: +3.9 %
-    and +3.3 %, but -13 % at 1 agent, and -12 % there still with only the (fp32) acting
-    critic per critic, so a bf16 learner keeps the shared layout for all its critics
-    (``make_learner`` picks one layout per learner). On CPUs the per-critic GEMMs sum in
-    another order: the gradients change in their last bits (relative 1e-7) and with them
-    fixed-seed trajectories, so CPU runs keep the shared layout and their results."""
+    Measured on an H100 (ATD3+AfDP, paper sizes): fp32 per critic, +8.8 % agent-updates/s
+    at 128 agents and +8.7 % agent env-steps/s at 64, no change at 1 agent (2026-11-24,
+    ``results/bench_learner_twin_inputs/``). With XLA's Triton GEMMs it had cost a 1-agent
+    bf16 run 13 %, so bf16 learners kept the shared layout; with their GEMMs on cuBLAS
+    (``compiler_options``) they take it too (together +33 % learner at 128 agents, +29 % full
+    step at 64; 2026-11-25, ``results/bench_learner_cublas/``). On CPUs
+    the per-critic GEMMs sum in another order: the gradients change in their last bits
+    (relative 1e-7) and with them fixed-seed trajectories, so CPU runs keep the shared
+    layout and their results."""
     backend = jax.default_backend() if backend is None else backend
-    return backend == "gpu" and jnp.dtype(critic.dtype) == jnp.float32
+    return backend == "gpu"
 
 
 def apply_critics(
@@ -291,7 +292,7 @@ def apply_critics(
     fp32 rounding. None: ``inputs_per_critic_by_default``.
     """
     if inputs_per_critic is None:
-        inputs_per_critic = inputs_per_critic_by_default(critic)
+        inputs_per_critic = inputs_per_critic_by_default()
     if not inputs_per_critic:
         return jax.vmap(critic.apply, in_axes=(0, None, None))(params, obs, action)
     n = jax.tree_util.tree_leaves(params)[0].shape[0]

@@ -46,6 +46,7 @@ from rich.console import Console
 import envs
 from advisor_jax import __version__
 from advisor_jax.agent.baselines import check_baseline_hparams
+from advisor_jax.agent.compiler_options import compiler_options
 from advisor_jax.agent.config import HParams, TrainConfig
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training import (
@@ -309,8 +310,9 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
             )
             return vmapped(state, hp, first_step, gate)
 
+    options = compiler_options(cfg.agent.precision)
     if placement is None or placement.mesh is None:
-        return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0)
+        return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0, compiler_options=options)
     agents, replicated = placement.agents(), placement.replicated()
     init_fn = jax.jit(init, in_shardings=agents, out_shardings=agents)
     chunk_fn = jax.jit(
@@ -318,5 +320,6 @@ def population_functions(cfg: TrainConfig, placement: Placement | None = None):
         in_shardings=(agents, agents, replicated),
         out_shardings=agents,
         donate_argnums=0,
+        compiler_options=options,
     )
     return trainer, init_fn, chunk_fn
