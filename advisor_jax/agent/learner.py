@@ -284,16 +284,19 @@ def make_learner(
           The new state; the critic and actor metrics (the actor's NaN on updates that
           skip it); and whether any loss computed in this update was non-finite.
         """
-        batch = replay_sample(replay, sample_key, cfg.batch_size)
-        state, critic_metrics = critic_step(state, batch, critic_key, hp)
+        with jax.named_scope("replay_sample"):  # scopes: labels for profiles, nothing else
+            batch = replay_sample(replay, sample_key, cfg.batch_size)
+        with jax.named_scope("critic_step"):
+            state, critic_metrics = critic_step(state, batch, critic_key, hp)
         update_actor = update_index % cfg.delay == 0
 
         def skip_actor(s):
             return s, nan_like(jax.eval_shape(actor_step, s, batch, hp, episode)[1])
 
-        state, actor_metrics = jax.lax.cond(
-            update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
-        )
+        with jax.named_scope("actor_step"):
+            state, actor_metrics = jax.lax.cond(
+                update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
+            )
         nonfinite = ~_all_finite(critic_metrics) | (update_actor & ~_all_finite(actor_metrics))
         return state, {**critic_metrics, **actor_metrics}, nonfinite
 

@@ -277,9 +277,13 @@ def make_train(cfg: TrainConfig) -> Trainer:
                 bc_lr=hp.bc_lr * active,
                 model_lr=hp.model_lr * active,
             )
+            # Named scopes label the compiled program's ops for profiles
+            # (experiments/profile_train.py); they change nothing else.
             if schedule is None:
-                state = collect(state, hp, active)
-                state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
+                with jax.named_scope("collect"):
+                    state = collect(state, hp, active)
+                with jax.named_scope("learn"):
+                    state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
             else:  # the phase at the start of the step decides both halves
                 phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
                 state = collect(state, hp, active, phase, gate)

@@ -1,0 +1,251 @@
+"""Where a full training step's time goes: a device trace of the training chunk.
+
+``bench_train.py`` times the chunk; ``profile_learner.py`` traces the learner alone. This
+script traces the chunk itself (env, advisor, actor, Eq. 1 selector, replay insert and the
+update: what training runs) for populations of ``--agents``, after a warm-up past the
+learning start, and reports per environment step:
+
+* the wall-clock time, the time the device was busy and the idle rest (launch latency,
+  host synchronisation: at 1 agent a step is a chain of small kernels);
+* the kernels launched, and the idle gaps between consecutive kernels by length;
+* kernel time by part of the step, from the named scopes of ``training/train.py`` and
+  ``Learner.update`` (collect, replay sample, critic step, actor step) that XLA keeps in
+  the compiled program's op names; cuBLAS GEMMs run inside CUDA graphs without an HLO
+  name and are counted as their own part;
+* kernel time by kind (GEMM, elementwise, reduction, copy/transpose) and the top kernels.
+
+    python experiments/profile_train.py --agents 1 64 --precision bf16     # on the GPU
+    python experiments/profile_train.py --preset quick --agents 1 --chunk 20   # CPU smoke run
+
+Writes ``results/profile_train.md`` and ``.json`` (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import gzip
+import json
+import re
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import common
+import jax
+import jax.numpy as jnp
+from profile_learner import busy_us, device_events, hlo_instructions, kind_of
+
+from advisor_jax.agent.config import preset
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.host_loop import population_functions
+from advisor_jax.training.population import agent_keys, build_population
+
+# Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
+PARTS = (
+    ("actor step (every d-th update)", "actor_step"),
+    ("critic step", "critic_step"),
+    ("replay sample", "replay_sample"),
+    ("learn (rest)", "learn"),
+    ("collect (env, advisor, actor, selector, noise, replay insert)", "collect"),
+)
+GAP_EDGES_US = (2, 5, 10, 20, 50)
+
+
+def part_of(op_name: str, has_hlo_name: bool) -> str:
+    if not has_hlo_name:
+        return "library call (cuBLAS in a CUDA graph, no HLO name)"
+    for part, scope in PARTS:
+        if f"/{scope}/" in f"/{op_name}/":
+            return part
+    return "chunk (bookkeeping outside the scopes)"
+
+
+def gaps_us(events: list[dict]) -> list[float]:
+    """Idle time between each kernel's end and the next kernel's start (µs, ≥ 0)."""
+    spans = sorted((e["ts"], e["ts"] + e["dur"]) for e in events)
+    out, end = [], None
+    for start, stop in spans:
+        if end is not None:
+            out.append(max(0.0, start - end))
+        end = stop if end is None else max(end, stop)
+    return out
+
+
+def largest_first(totals: dict[str, float]) -> list[tuple[str, float]]:
+    return sorted(totals.items(), key=lambda kv: -kv[1])
+
+
+def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
+    """One traced chunk of ``n_agents``, warm (compiled, past the learning start)."""
+    _, init_fn, chunk_fn = population_functions(cfg)
+    hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
+    state, step = init_fn(agent_keys(list(range(n_agents)))), 0
+    compiled = chunk_fn.lower(state, hp, jnp.int32(step)).compile()  # runs, and has the HLO
+
+    def chunk():
+        nonlocal state, step
+        state, _ = compiled(state, hp, jnp.int32(step))
+        step += cfg.chunk_steps
+        return state
+
+    while step * cfg.envs_per_agent < cfg.agent.warmup + cfg.chunk_steps:
+        jax.block_until_ready(chunk())
+    _, untraced = common.run_timed(chunk)
+    hlo = compiled.as_text()
+    with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
+        _, wall = common.run_timed(chunk)
+    files = sorted(trace_dir.rglob("perfetto_trace.json.gz"))
+    if not files:
+        raise RuntimeError(f"jax.profiler wrote no perfetto_trace.json.gz under {trace_dir}")
+    events, source = device_events(json.loads(gzip.decompress(files[-1].read_bytes())))
+    instructions = hlo_instructions(hlo)
+    steps = cfg.chunk_steps
+    by_part: dict[str, float] = collections.defaultdict(float)
+    by_kind: dict[str, float] = collections.defaultdict(float)
+    by_name: dict[str, list] = collections.defaultdict(lambda: [0, 0.0, "", ("", "")])
+    for e in events:
+        name = e["name"]
+        dotted = re.sub(r"_(\d+)$", r".\1", name)  # kernel fusion_3 is HLO fusion.3
+        shape_op = instructions.get(name) or instructions.get(dotted)
+        part = part_of(shape_op[1] if shape_op else "", shape_op is not None)
+        by_part[part] += e["dur"]
+        by_kind[kind_of(name)] += e["dur"]
+        row = by_name[name]
+        row[:] = row[0] + 1, row[1] + e["dur"], part, shape_op or ("", "")
+    gaps = gaps_us(events)
+    edges = (0, *GAP_EDGES_US, float("inf"))
+    gap_bins = {
+        f"{lo:g}-{hi:g} µs": (sum(lo <= g < hi for g in gaps) / steps,
+                              sum(g for g in gaps if lo <= g < hi) / steps)
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+    }  # fmt: skip
+    per_step = lambda us: us / steps  # noqa: E731
+    return dict(
+        _hlo=hlo,
+        agents=n_agents,
+        steps=steps,
+        agent_steps_per_s=n_agents * steps * cfg.envs_per_agent / untraced,
+        wall_us_per_step=1e6 * wall / steps,
+        wall_untraced_us_per_step=1e6 * untraced / steps,
+        busy_us_per_step=per_step(busy_us(events)),
+        kernels_per_step=len(events) / steps,
+        event_source=source,
+        gaps_per_step={k: dict(count=c, us=us) for k, (c, us) in gap_bins.items()},
+        part_us_per_step={k: per_step(v) for k, v in largest_first(by_part)},
+        kind_us_per_step={k: per_step(v) for k, v in largest_first(by_kind)},
+        top=[dict(name=n, calls_per_step=c / steps, us_per_step=d / steps, part=p,
+                  shape=shape, op=op)
+             for n, (c, d, p, (shape, op)) in sorted(by_name.items(),
+                                                     key=lambda kv: -kv[1][1])[:40]],
+    )  # fmt: skip
+
+
+def report(rows: list[dict], title: str, command: str) -> list[str]:
+    lines = ["# Where a training step's time goes", "", title]
+    if any(not r["event_source"].startswith("device") for r in rows):
+        lines += ["", "No GPU in the trace: the events below are the host's (a smoke run)."]
+    for r in rows:
+        idle = r["wall_us_per_step"] - r["busy_us_per_step"]
+        lines += [
+            "",
+            f"## {r['agents']} agent{'s' if r['agents'] > 1 else ''}",
+            "",
+            f"{r['agent_steps_per_s']:,.0f} agent env-steps/s untraced "
+            f"({r['wall_untraced_us_per_step']:.0f} µs per population step). Traced: "
+            f"{r['wall_us_per_step']:.0f} µs per step, the device busy "
+            f"{r['busy_us_per_step']:.0f} µs ({100 * r['busy_us_per_step'] / r['wall_us_per_step']:.0f} %),"  # noqa: E501
+            f" idle {idle:.0f} µs; {r['kernels_per_step']:.1f} kernels per step.",
+            "",
+            *common.markdown_table(
+                ("part of the step", "kernel µs per step", "%"),
+                [
+                    (k, v, 100 * v / sum(r["part_us_per_step"].values()))
+                    for k, v in r["part_us_per_step"].items()
+                ],
+                formats=("", ".1f", ".1f"),
+            ),  # fmt: skip
+            "",
+            *common.markdown_table(
+                ("kind", "kernel µs per step"),
+                list(r["kind_us_per_step"].items()),
+                formats=("", ".1f"),
+            ),
+            "",
+            "Idle gaps between consecutive kernels, per step:",
+            "",
+            *common.markdown_table(
+                ("gap", "count", "µs"),
+                [(k, v["count"], v["us"]) for k, v in r["gaps_per_step"].items()],
+                formats=("", ".1f", ".1f"),
+            ),
+            "",
+            *common.markdown_table(
+                ("kernel", "calls per step", "µs per step", "part", "output shape", "JAX op"),
+                [
+                    (
+                        t["name"][:70].replace("|", "/"),
+                        t["calls_per_step"],
+                        t["us_per_step"],
+                        t["part"],
+                        t["shape"][:60],
+                        t["op"][-90:].replace("|", "/"),
+                    )
+                    for t in r["top"][:25]
+                ],
+                formats=("", ".2f", ".1f", "", "", ""),
+            ),  # fmt: skip
+        ]
+    return [*lines, "", f"Command: `{command}`", ""]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--preset", default="paper")
+    parser.add_argument("--agent", default="ATD3+AfDP")
+    parser.add_argument("--agents", type=int, nargs="+", default=[1, 64])
+    parser.add_argument("--chunk", type=int, default=100, help="env steps in the traced chunk")
+    parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
+                        help="the learner's precision (AgentConfig.precision)")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--keep-hlo", action="store_true",
+                        help="also write each size's compiled HLO (gzipped text)")  # fmt: skip
+    args = parser.parse_args()
+    if min(args.agents) < 1 or args.chunk < 1:
+        parser.error(f"--agents and --chunk must be ≥ 1, got {args.agents} and {args.chunk}")
+    cfg, hp = preset(args.preset, args.agent, precision=args.precision)
+    cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
+    where = common.provenance()
+    rows = []
+    for n in args.agents:
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory() as tmp:
+            rows.append(profile(cfg, hp, n, Path(tmp)))
+        r = rows[-1]
+        hlo = r.pop("_hlo")
+        if args.keep_hlo:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / f"profile_train_hlo_{n}.txt.gz").write_bytes(gzip.compress(hlo.encode()))
+        print(f"agents {n}: {r['agent_steps_per_s']:,.0f} agent env-steps/s, "
+              f"{r['wall_us_per_step']:.0f} µs per step traced, busy "
+              f"{r['busy_us_per_step']:.0f} µs, {r['kernels_per_step']:.1f} kernels "
+              f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    atomic_write_json(
+        args.out / "profile_train.json",
+        dict(**where, preset=args.preset, agent=args.agent, precision=args.precision,
+             chunk=args.chunk, rows=rows),
+    )  # fmt: skip
+    title = (f"{args.agent}, preset `{args.preset}`, learner {args.precision}, one traced "
+             f"chunk of {args.chunk} env steps after a warm-up past the learning start; "
+             f"{where['device']} ({where['backend']}), jax {where['jax']}, "
+             f"{where['date']}.")  # fmt: skip
+    command = common.command_line("experiments/profile_train.py", sys.argv[1:])
+    common.write_markdown(args.out / "profile_train.md", report(rows, title, command))
+
+
+if __name__ == "__main__":
+    main()

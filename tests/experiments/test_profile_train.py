@@ -1,0 +1,58 @@
+"""experiments/profile_train.py: kernels are attributed to the parts of a training step by
+the named scopes of the training chunk, which must therefore reach the program; idle gaps
+are measured between consecutive kernels."""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import jax.numpy as jnp
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
+
+import profile_train  # noqa: E402
+
+from advisor_jax.agent.config import HParams  # noqa: E402
+from advisor_jax.training.host_loop import population_functions  # noqa: E402
+from advisor_jax.training.population import agent_keys, build_population  # noqa: E402
+from tests.train.conftest import TINY  # noqa: E402
+
+PREFIX = "jit(chunk)/vmap()/while/body/closed_call/learn/cond/branch_1_fun/while/body/"
+
+
+@pytest.mark.parametrize(
+    ("op_name", "part"),
+    [
+        (PREFIX + "closed_call/actor_step/cond/branch_1_fun/jvp(Actor)/hidden_0/dot_general",
+         "actor step (every d-th update)"),
+        (PREFIX + "closed_call/critic_step/transpose(jvp(Critic))/state/add", "critic step"),
+        (PREFIX + "replay_sample/gather", "replay sample"),
+        ("jit(chunk)/vmap()/while/body/learn/add", "learn (rest)"),
+        ("jit(chunk)/vmap()/while/body/collect/Actor/hidden_0/dot_general",
+         "collect (env, advisor, actor, selector, noise, replay insert)"),
+        ("jit(chunk)/vmap()/while/body/add", "chunk (bookkeeping outside the scopes)"),
+        ("jit(chunk)/vmap()/while/body/collector/add", "chunk (bookkeeping outside the scopes)"),
+    ],
+)  # fmt: skip
+def test_parts_from_op_names(op_name, part):
+    assert profile_train.part_of(op_name, has_hlo_name=True) == part
+
+
+def test_kernels_without_an_hlo_name_are_library_calls():
+    assert profile_train.part_of("", has_hlo_name=False).startswith("library call")
+
+
+def test_gaps_between_kernels_overlaps_count_as_none():
+    events = [dict(ts=0, dur=5), dict(ts=3, dur=4), dict(ts=10, dur=1), dict(ts=30, dur=2)]
+    assert profile_train.gaps_us(events) == [0.0, 3.0, 19.0]
+
+
+def test_the_training_chunk_carries_the_named_scopes():
+    _, init_fn, chunk_fn = population_functions(TINY)
+    hp, _ = build_population(HParams(), {}, seeds=[0])
+    text = chunk_fn.lower(init_fn(agent_keys([0])), hp, jnp.int32(0)).as_text(debug_info=True)
+    for scope in ("collect", "learn", "replay_sample", "critic_step", "actor_step"):
+        assert re.search(rf'["/]{scope}/', text), scope
