@@ -207,8 +207,14 @@ def main() -> None:
     parser.add_argument("--bias-in-gemm", action="store_true",
                         help="hidden layers add their bias inside the matmul "
                              "(networks.BIAS_IN_GEMM); not passed to --reference")  # fmt: skip
+    parser.add_argument("--width-align", type=int, default=1, metavar="N",
+                        help="hidden widths computed padded to a multiple of N "
+                             "(networks.WIDTH_ALIGN); not passed to --reference")  # fmt: skip
     args = parser.parse_args()
     networks.BIAS_IN_GEMM = networks.BIAS_IN_GEMM or args.bias_in_gemm
+    if args.width_align < 1:
+        parser.error(f"--width-align must be ≥ 1, got {args.width_align}")
+    networks.WIDTH_ALIGN = args.width_align
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
@@ -262,7 +268,7 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        bias_in_gemm=networks.BIAS_IN_GEMM, rows=rows,
+        bias_in_gemm=networks.BIAS_IN_GEMM, width_align=networks.WIDTH_ALIGN, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
     )  # fmt: skip
@@ -284,6 +290,8 @@ def main() -> None:
         + (
             "; hidden layers with the bias in the matmul (networks.BIAS_IN_GEMM)."
             if networks.BIAS_IN_GEMM
+            else f"; hidden widths padded to multiples of {networks.WIDTH_ALIGN} (WIDTH_ALIGN)."
+            if networks.WIDTH_ALIGN > 1
             else "."
         ),
         "",
@@ -304,7 +312,9 @@ def main() -> None:
         lines += [
             "",
             f"Against `{args.reference}` (run in the same command, same options"
-            + (", without --bias-in-gemm):" if args.bias_in_gemm else "):"),
+            + (", without --bias-in-gemm" if args.bias_in_gemm else "")
+            + (", without --width-align" if args.width_align > 1 else "")
+            + "):",
             "",
             *common.markdown_table(
                 ("precision", "agents", "reference agent-updates/s", "this tree", "speed-up"),

@@ -56,6 +56,31 @@ critic its own inputs (``apply_critics``), the bias row on top of that is -1.4 %
 K_ALIGN = 8
 """The bias row's matmul pads its contraction dimension with zeros to a multiple of this."""
 
+WIDTH_ALIGN = 1
+"""Default of ``make_actor``/``make_critic``'s ``width_align``, read when they are called
+(1: off). With 8, every hidden layer whose width is not a multiple of 8 (the paper's 300 and
+500) computes at the next multiple, its kernel and bias padded with zeros on every call
+(``affine``'s ``out_align``), and the next layer's kernel padded with zero rows to match:
+the padded units are ReLU(0) = 0 forever (their gradients are exactly 0, so Adam leaves
+their zeros alone; the parameters keep their own shapes and never hold the padding).
+Why: XLA pads bf16 GEMM operands to multiples of 8 for cuBLAS itself, and where the operand
+is an activation that pad is a pass over ``[agents, batch, width]``: at 64 agents in bf16
+the critic's 500-wide activations padded to 504 took about 0.9 ms of a 7.0 ms training step
+on an H100 (``results/profile_train/bf16_64agents_hlo/``). Padding the small weights instead
+leaves no activation to pad. Measured (bf16 learner, H100, 2026-11-25, one process each,
+``results/bench_learner_width_align.md``): +1.3 % at 128 agents (10,477 vs 10,343
+agent-updates/s), +3.0 % at 1 agent (3,131 vs 3,041), not resolved from the run-to-run
+spread by one run each; off by default until it is (``bench_learner.py --width-align 8``)."""
+
+
+def _pad_axis(a: jax.Array, axis: int, size: int) -> jax.Array:
+    """``a`` with zeros appended along ``axis`` up to ``size``."""
+    if a.shape[axis] == size:
+        return a
+    widths = [(0, 0)] * a.ndim
+    widths[axis] = (0, size - a.shape[axis])
+    return jnp.pad(a, widths)
+
 
 def affine(
     xs: Sequence[jax.Array],
@@ -64,6 +89,7 @@ def affine(
     dtype: Any,
     bias_in_gemm: bool = False,
     k_align: int = K_ALIGN,
+    out_align: int = 1,
 ) -> jax.Array:
     """``sum_i xs[i] @ kernels[i] + bias`` in ``dtype``; with ``bias_in_gemm`` as one matmul.
 
@@ -100,7 +126,21 @@ def affine(
 
     ``bias_in_gemm=False`` computes what ``nn.Dense`` does (``lax.dot_general`` per block,
     then ``+ bias``), the same operations in the same order.
+
+    Padded widths (``WIDTH_ALIGN``): an input wider than its kernel's rows (the previous
+    layer's padded output) meets the kernel padded with zero rows, and ``out_align`` > 1
+    pads the kernel's columns and the bias with zeros to a multiple of it: the output is
+    wider by zero units. Off (the default) nothing is padded.
     """
+    if out_align > 1 or any(x.shape[-1] != k.shape[0] for x, k in zip(xs, kernels, strict=True)):
+        if bias_in_gemm:
+            raise ValueError(
+                "padded widths (out_align, WIDTH_ALIGN) and bias_in_gemm exclude each other"
+            )
+        width = -(-bias.shape[-1] // out_align) * out_align
+        kernels = [_pad_axis(_pad_axis(k, 0, x.shape[-1]), 1, width)
+                   for x, k in zip(xs, kernels, strict=True)]  # fmt: skip
+        bias = _pad_axis(bias, 0, width)
     xs = [x.astype(dtype) for x in xs]
     kernels = [k.astype(dtype) for k in kernels]
     bias = bias.astype(dtype)
@@ -122,17 +162,30 @@ def affine(
 
 class Dense(nn.Module):
     """``nn.Dense`` (He kernel, zero bias, same parameter names, shapes and initial values);
-    with ``bias_in_gemm`` the bias is added inside the matmul (``affine``)."""
+    with ``bias_in_gemm`` the bias is added inside the matmul (``affine``). ``in_features``:
+    the input width the parameters have when ``x`` arrives padded (``WIDTH_ALIGN``);
+    ``out_align``: pad the output width to a multiple of it (``affine``)."""
 
     features: int
     dtype: Any = jnp.float32  # compute precision; parameters stay fp32
     bias_in_gemm: bool = False
+    in_features: int | None = None  # None: x.shape[-1]
+    out_align: int = 1
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        kernel = self.param("kernel", he_init, (x.shape[-1], self.features))
+        n_in = x.shape[-1] if self.in_features is None else self.in_features
+        kernel = self.param("kernel", he_init, (n_in, self.features))
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
-        return affine([x], [kernel], bias, self.dtype, self.bias_in_gemm)
+        return affine([x], [kernel], bias, self.dtype, self.bias_in_gemm, out_align=self.out_align)
+
+
+def _head(features: int, in_features: int, width_align: int, name: str) -> nn.Module:
+    """An output head in fp32: ``nn.Dense`` as always, or, with padded hidden widths, our
+    ``Dense`` (the same parameters and initial values) that meets the padded input."""
+    if width_align == 1:
+        return nn.Dense(features, kernel_init=he_init, dtype=jnp.float32, name=name)
+    return Dense(features, dtype=jnp.float32, in_features=in_features, name=name)
 
 
 class Actor(nn.Module):
@@ -141,17 +194,22 @@ class Actor(nn.Module):
     hidden: Sequence[int] = (600, 300)
     dtype: Any = jnp.float32  # compute precision of the hidden layers (module docstring)
     bias_in_gemm: bool = False  # hidden layers add their bias in the matmul (``affine``)
+    width_align: int = 1  # hidden widths computed padded to a multiple (``WIDTH_ALIGN``)
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        x = obs
+        x, n_in = obs, obs.shape[-1]
         for i, width in enumerate(self.hidden):
             dense = Dense(
-                width, dtype=self.dtype, bias_in_gemm=self.bias_in_gemm, name=f"hidden_{i}"
+                width,
+                dtype=self.dtype,
+                bias_in_gemm=self.bias_in_gemm,
+                in_features=n_in,
+                out_align=self.width_align,
+                name=f"hidden_{i}",
             )
-            x = nn.relu(dense(x))
-        head = nn.Dense(spec.ACTION_SIZE, kernel_init=he_init, dtype=jnp.float32, name="head")
-        logits = head(x)
+            x, n_in = nn.relu(dense(x)), width
+        logits = _head(spec.ACTION_SIZE, n_in, self.width_align, "head")(x)
         return jnp.stack([nn.sigmoid(logits[..., 0]), jnp.tanh(logits[..., 1])], axis=-1)
 
 
@@ -174,10 +232,12 @@ class JoinDense(nn.Module):
     features: int
     dtype: Any = jnp.float32
     bias_in_gemm: bool = False
+    in_features: int | None = None  # x's width in the parameters (``Dense``); None: x's
+    out_align: int = 1
 
     @nn.compact
     def __call__(self, x: jax.Array, a: jax.Array) -> jax.Array:
-        n, m = x.shape[-1], a.shape[-1]
+        n, m = x.shape[-1] if self.in_features is None else self.in_features, a.shape[-1]
 
         def init(key):
             whole = he_init(key, (n + m, self.features))
@@ -185,9 +245,8 @@ class JoinDense(nn.Module):
 
         kernel = self.param("kernel", init)
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
-        return affine(
-            [x, a], [kernel["state"], kernel["action"]], bias, self.dtype, self.bias_in_gemm
-        )
+        return affine([x, a], [kernel["state"], kernel["action"]], bias, self.dtype,
+                      self.bias_in_gemm, out_align=self.out_align)  # fmt: skip
 
 
 class Critic(nn.Module):
@@ -197,18 +256,20 @@ class Critic(nn.Module):
     hidden: Sequence[int] = (500, 600)
     dtype: Any = jnp.float32  # compute precision of the hidden layers (module docstring)
     bias_in_gemm: bool = False  # hidden layers add their bias in the matmul (``affine``)
+    width_align: int = 1  # hidden widths computed padded to a multiple (``WIDTH_ALIGN``)
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-        dense = partial(Dense, dtype=self.dtype, bias_in_gemm=self.bias_in_gemm)
-        x = nn.relu(dense(self.state_hidden, name="state")(obs))
-        join = JoinDense(
-            self.hidden[0], dtype=self.dtype, bias_in_gemm=self.bias_in_gemm, name="hidden_0"
-        )
+        dense = partial(Dense, dtype=self.dtype, bias_in_gemm=self.bias_in_gemm,
+                        out_align=self.width_align)  # fmt: skip
+        x = nn.relu(dense(self.state_hidden, in_features=obs.shape[-1], name="state")(obs))
+        join = JoinDense(self.hidden[0], dtype=self.dtype, bias_in_gemm=self.bias_in_gemm,
+                         in_features=self.state_hidden, out_align=self.width_align,
+                         name="hidden_0")  # fmt: skip
         x = nn.relu(join(x, action))
         for i, width in enumerate(self.hidden[1:], start=1):
-            x = nn.relu(dense(width, name=f"hidden_{i}")(x))
-        return nn.Dense(1, kernel_init=he_init, dtype=jnp.float32, name="q")(x)[..., 0]
+            x = nn.relu(dense(width, in_features=self.hidden[i - 1], name=f"hidden_{i}")(x))
+        return _head(1, self.hidden[-1], self.width_align, "q")(x)[..., 0]
 
 
 PRECISIONS = {"fp32": jnp.float32, "bf16": jnp.bfloat16}
@@ -216,7 +277,10 @@ PRECISIONS = {"fp32": jnp.float32, "bf16": jnp.bfloat16}
 
 
 def make_actor(
-    hidden: Sequence[int], precision: str = "fp32", bias_in_gemm: bool | None = None
+    hidden: Sequence[int],
+    precision: str = "fp32",
+    bias_in_gemm: bool | None = None,
+    width_align: int | None = None,
 ) -> Actor:
     """The one policy factory: π(s; φ) with these hidden widths (``AgentConfig.actor_hidden``).
 
@@ -224,23 +288,35 @@ def make_actor(
     always a tuple of ints (a list would make another, unequal module). ``precision`` is
     the learner's (``AgentConfig.precision``); everything that acts (data collection,
     evaluation, export) uses the fp32 default on the same parameters. ``bias_in_gemm``:
-    ``affine``; None takes ``BIAS_IN_GEMM``."""
+    ``affine``; None takes ``BIAS_IN_GEMM``. ``width_align``: ``WIDTH_ALIGN``'s; None takes
+    it."""
     return Actor(
         hidden=tuple(int(w) for w in hidden),
         dtype=PRECISIONS[precision],
         bias_in_gemm=BIAS_IN_GEMM if bias_in_gemm is None else bool(bias_in_gemm),
+        width_align=_width_align(width_align),
     )
 
 
-def make_critic(cfg, precision: str = "fp32", bias_in_gemm: bool | None = None) -> Critic:
+def make_critic(
+    cfg, precision: str = "fp32", bias_in_gemm: bool | None = None, width_align: int | None = None
+) -> Critic:
     """Q(s, a; θ) at ``cfg``'s (an ``AgentConfig``'s) widths and the given precision
-    (``bias_in_gemm``: as ``make_actor``)."""
+    (``bias_in_gemm``, ``width_align``: as ``make_actor``)."""
     return Critic(
         state_hidden=cfg.critic_state_hidden,
         hidden=tuple(cfg.critic_hidden),
         dtype=PRECISIONS[precision],
         bias_in_gemm=BIAS_IN_GEMM if bias_in_gemm is None else bool(bias_in_gemm),
+        width_align=_width_align(width_align),
     )
+
+
+def _width_align(width_align: int | None) -> int:
+    align = WIDTH_ALIGN if width_align is None else width_align
+    if int(align) != align or align < 1:
+        raise ValueError(f"width_align must be a positive integer, got {align!r}")
+    return int(align)
 
 
 def count_params(params) -> int:

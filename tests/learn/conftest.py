@@ -16,7 +16,7 @@ import jax
 import numpy as np
 import pytest
 
-from advisor_jax.agent.config import AgentConfig, parse_agent
+from advisor_jax.agent.config import AgentConfig, HParams, parse_agent
 from advisor_jax.agent.learner import Learner, make_learner
 from advisor_jax.agent.replay_buffer import Transition
 
@@ -80,6 +80,36 @@ def _random_batch(seed: int, n: int) -> Transition:
 def random_batch() -> Callable[[int, int], Transition]:
     """(seed, n) -> n random, valid transitions (numpy float32 leaves)."""
     return _random_batch
+
+
+def assert_learner_steps_match(learner: Learner, plain: Agent, batch: Transition) -> None:
+    """``learner`` (another arithmetic of ``plain``'s agent type) starts from the same state,
+    and one critic step and one actor step land where ``plain``'s do, to fp32 rounding
+    (Adam's first step is ±lr per entry, so an entry whose gradient is ~0 may step the other
+    way)."""
+    key = jax.random.PRNGKey(21)
+    state = jax.jit(learner.init)(key)
+    for x, y in zip(jax.tree.leaves(state), jax.tree.leaves(plain.init(key)), strict=True):
+        np.testing.assert_array_equal(x, y)
+    hp = jax.tree.map(np.float32, HParams(beta=0.05))
+    k = jax.random.PRNGKey(23)
+    (s_new, m_new), (s_plain, m_plain) = (
+        jax.jit(learner.critic_step)(state, batch, k, hp),
+        plain.critic_step(state, batch, k, hp),
+    )
+    (s_new, a_new), (s_plain, a_plain) = (
+        jax.jit(learner.actor_step)(s_new, batch, hp),
+        plain.actor_step(s_plain, batch, hp),
+    )
+    for name in ("loss/critic", "q/mean", "q/target", "loss/actor", "grad_norm/critic"):
+        got, want = {**m_new, **a_new}[name], {**m_plain, **a_plain}[name]
+        np.testing.assert_allclose(got, want, rtol=1e-5, err_msg=name)
+    for field in ("critic", "actor", "target_critic", "target_actor"):
+        for got, want, before in zip(
+            *(jax.tree.leaves(getattr(s, field)) for s in (s_new, s_plain, state)), strict=True
+        ):
+            same = np.isclose(got - before, want - before, rtol=1e-4, atol=1e-9)
+            assert same.mean() > 0.99, field
 
 
 # Numpy reference networks ----------------------------------------------------------------

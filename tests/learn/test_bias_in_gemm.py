@@ -21,10 +21,9 @@ import numpy as np
 import pytest
 
 from advisor_jax.agent import networks
-from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.contract import spec
-from tests.learn.conftest import SMALL
+from tests.learn.conftest import SMALL, assert_learner_steps_match
 
 he_init = nn.initializers.he_normal()
 CFG = SimpleNamespace(
@@ -361,28 +360,6 @@ def test_learner_steps_with_the_bias_row_match_the_plain_learner(agents, random_
     is ±lr per entry, so an entry whose gradient is ~0 may step the other way)."""
     plain = agents["atd3"]
     monkeypatch.setattr(networks, "BIAS_IN_GEMM", True)
-    learner = make_learner(plain.cfg)
-    key = jax.random.PRNGKey(21)
-    state = jax.jit(learner.init)(key)
-    for x, y in zip(jax.tree.leaves(state), jax.tree.leaves(plain.init(key)), strict=True):
-        np.testing.assert_array_equal(x, y)
-    batch = random_batch(22, SMALL["batch_size"])
-    hp = jax.tree.map(np.float32, HParams(beta=0.05))
-    k = jax.random.PRNGKey(23)
-    (s_new, m_new), (s_plain, m_plain) = (
-        jax.jit(learner.critic_step)(state, batch, k, hp),
-        plain.critic_step(state, batch, k, hp),
+    assert_learner_steps_match(
+        make_learner(plain.cfg), plain, random_batch(22, SMALL["batch_size"])
     )
-    (s_new, a_new), (s_plain, a_plain) = (
-        jax.jit(learner.actor_step)(s_new, batch, hp),
-        plain.actor_step(s_plain, batch, hp),
-    )
-    for name in ("loss/critic", "q/mean", "q/target", "loss/actor", "grad_norm/critic"):
-        got, want = {**m_new, **a_new}[name], {**m_plain, **a_plain}[name]
-        np.testing.assert_allclose(got, want, rtol=1e-5, err_msg=name)
-    for field in ("critic", "actor", "target_critic", "target_actor"):
-        for got, want, before in zip(
-            *(jax.tree.leaves(getattr(s, field)) for s in (s_new, s_plain, state)), strict=True
-        ):
-            same = np.isclose(got - before, want - before, rtol=1e-4, atol=1e-9)
-            assert same.mean() > 0.99, field
