@@ -167,7 +167,7 @@ def main() -> None:
                     f"(x{rows[-1]['speedup']:.2f}), warm-up {rows[-1]['warmup_s']:.1f} s"
                 )
 
-    if reference is not None:
+    if reference is not None:  # the other tree's rows, and which tree
         reference = dict(tree=str(args.reference), rows=reference["rows"])
     result = dict(
         **where,

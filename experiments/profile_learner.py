@@ -110,6 +110,23 @@ def hlo_instructions(hlo: str) -> dict[str, tuple[str, str]]:
     return out
 
 
+def instruction_of(kernel: str, instructions: dict[str, tuple[str, str]]) -> tuple[str, str] | None:
+    """(output shape, JAX op name) of the HLO instruction that launched ``kernel`` (XLA names
+    the kernel of ``fusion.3`` ``fusion_3``); None for kernels without one (library calls)."""
+    dotted = re.sub(r"_(\d+)$", r".\1", kernel)
+    return instructions.get(dotted, instructions.get(kernel))
+
+
+def read_trace(trace_dir: Path) -> tuple[list[dict], str, Path]:
+    """``device_events`` of the Perfetto trace ``jax.profiler.trace`` wrote under
+    ``trace_dir``, and the trace file."""
+    files = sorted(trace_dir.rglob("perfetto_trace.json.gz"))
+    if not files:
+        raise RuntimeError(f"jax.profiler wrote no perfetto_trace.json.gz under {trace_dir}")
+    events, source = device_events(json.loads(gzip.decompress(files[-1].read_bytes())))
+    return events, source, files[-1]
+
+
 def role_of(shape: str, op_name: str) -> str:
     """What a memory-bound kernel does, from its output and JAX op name."""
     parts = re.findall(r"f32\[[^\]]*\]", shape)
@@ -137,11 +154,9 @@ def attribute(events: list[dict], hlo: str, n_updates: int) -> list[dict]:
         row["calls"] += 1
         row["us"] += e["dur"]
     for row in rows.values():
-        name = row["kernel"]
-        dotted = re.sub(r"_(\d+)$", r".\1", name)
-        shape, op_name = instructions.get(dotted, instructions.get(name, ("", "")))
+        shape, op_name = instruction_of(row["kernel"], instructions) or ("", "")
         row.update(
-            kind=kind_of(name),
+            kind=kind_of(row["kernel"]),
             shape=shape,
             op=op_name,
             role=role_of(shape, op_name) if shape else "",
@@ -212,11 +227,7 @@ def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
         t0 = time.perf_counter()
         states = jax.block_until_ready(loop(states, replays, keys))
         wall = time.perf_counter() - t0
-    files = sorted(trace_dir.rglob("perfetto_trace.json.gz"))
-    if not files:
-        raise RuntimeError(f"jax.profiler wrote no perfetto_trace.json.gz under {trace_dir}")
-    trace = json.loads(gzip.decompress(files[-1].read_bytes()))
-    events, source = device_events(trace)
+    events, source, trace_file = read_trace(trace_dir)
     by_name: dict[str, list] = collections.defaultdict(lambda: [0, 0.0])
     for e in events:
         by_name[e["name"]][0] += 1
@@ -242,7 +253,7 @@ def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
         top=[dict(name=n, kind=kind_of(n), calls=c, total_us=d) for n, (c, d) in top],
         us_per_agent_update_wall=wall * per_update,
         sample_event_args=sorted(events[0].get("args", {})) if events else [],
-        _trace_file=str(files[-1]),
+        _trace_file=str(trace_file),
         _hlo=hlo,
         _events=events,
     )

@@ -26,8 +26,6 @@ import argparse
 import collections
 import dataclasses
 import gzip
-import json
-import re
 import sys
 import tempfile
 import time
@@ -36,7 +34,7 @@ from pathlib import Path
 import common
 import jax
 import jax.numpy as jnp
-from profile_learner import busy_us, device_events, hlo_instructions, kind_of
+from profile_learner import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 
 from advisor_jax.agent.config import preset
 from advisor_jax.fileio import atomic_write_json
@@ -97,10 +95,7 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
     hlo = compiled.as_text()
     with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
         _, wall = common.run_timed(chunk)
-    files = sorted(trace_dir.rglob("perfetto_trace.json.gz"))
-    if not files:
-        raise RuntimeError(f"jax.profiler wrote no perfetto_trace.json.gz under {trace_dir}")
-    events, source = device_events(json.loads(gzip.decompress(files[-1].read_bytes())))
+    events, source, _ = read_trace(trace_dir)
     instructions = hlo_instructions(hlo)
     steps = cfg.chunk_steps
     by_part: dict[str, float] = collections.defaultdict(float)
@@ -108,8 +103,7 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
     by_name: dict[str, list] = collections.defaultdict(lambda: [0, 0.0, "", ("", "")])
     for e in events:
         name = e["name"]
-        dotted = re.sub(r"_(\d+)$", r".\1", name)  # kernel fusion_3 is HLO fusion.3
-        shape_op = instructions.get(name) or instructions.get(dotted)
+        shape_op = instruction_of(name, instructions)
         part = part_of(shape_op[1] if shape_op else "", shape_op is not None)
         by_part[part] += e["dur"]
         by_kind[kind_of(name)] += e["dur"]
