@@ -97,22 +97,41 @@ def xla_flops_per_update(cfg, learner, replay) -> float:
     return critic + actor / cfg.delay
 
 
-def make_update_loop(cfg, n_updates: int):
-    """``n_updates`` calls of ``Learner.update``, the exact step training runs, in a scan."""
+def make_update_loop(cfg, n_updates: int, steady: bool = False):
+    """``n_updates`` calls of ``Learner.update``, the exact step training runs, in a scan,
+    each update deciding its delayed actor step by ``lax.cond`` and compiled with XLA's
+    scheduling, as training's general program runs it.
+
+    ``steady``: the loop as the latency-bound program (populations of at most
+    ``host_loop.LATENCY_BOUND_AGENTS``) runs its updates instead: blocks of d updates
+    written out in a row whose first takes the actor step, no conditional, overlapping
+    kernels and a whole-loop graph. Timed alone that way the update ran slower, not faster
+    (1 agent, bf16, H100: 1,356-2,339 agent-updates/s against 3,121;
+    ``results/bench_train_steady/``): the program pays in the full step, where the
+    collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
     learner = make_learner(cfg)
     hp = HParams()
+    steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
 
     def one_agent(learner_state, replay, key):
-        def body(carry, u):
+        def update(carry, u, actor=None):
             state, key = carry
             key, k_sample, k_critic = jax.random.split(key, 3)
-            state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u)
+            state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u, 0, actor)
             return (state, key), None
 
-        (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), jnp.arange(n_updates))
+        def block(carry, u):  # d updates from u, a multiple of d, written out as training's
+            for j in range(delay):
+                carry, _ = update(carry, u + j, actor=j == 0)
+            return carry, None
+
+        body, starts = (
+            (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
+        )
+        (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), starts)
         return learner_state
 
-    options = compiler_options(cfg.precision)  # training's chunk compiles with the same
+    options = compiler_options(cfg.precision, overlap=steady, steady=steady)  # as training's
     return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)
 
 
@@ -204,6 +223,10 @@ def main() -> None:
                         help="learner precisions to time (AgentConfig.precision)")  # fmt: skip
     parser.add_argument("--reference", type=Path, metavar="TREE",
                         help="also run this checkout's benchmark and compare")  # fmt: skip
+    parser.add_argument("--latency-bound", action="store_true",
+                        help="time the update loop as the latency-bound training program "
+                             "compiles it (make_update_loop's steady); not passed to "
+                             "--reference")  # fmt: skip
     parser.add_argument("--bias-in-gemm", action="store_true",
                         help="hidden layers add their bias inside the matmul "
                              "(networks.BIAS_IN_GEMM); not passed to --reference")  # fmt: skip
@@ -239,7 +262,7 @@ def main() -> None:
     rows = []
     for precision, n_agents in itertools.product(args.precision, args.agents):
         cfg = dataclasses.replace(cfg, precision=precision)
-        learner, loop = make_update_loop(cfg, args.updates)
+        learner, loop = make_update_loop(cfg, args.updates, args.latency_bound)
         keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
         states = jax.jit(jax.vmap(learner.init))(keys)
         replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
@@ -268,7 +291,8 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        bias_in_gemm=networks.BIAS_IN_GEMM, width_align=networks.WIDTH_ALIGN, rows=rows,
+        bias_in_gemm=networks.BIAS_IN_GEMM, width_align=networks.WIDTH_ALIGN,
+        latency_bound=args.latency_bound, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
     )  # fmt: skip

@@ -29,6 +29,7 @@ import sys
 from pathlib import Path
 
 import common
+import jax
 import jax.numpy as jnp
 
 from advisor_jax.agent.config import preset
@@ -36,6 +37,9 @@ from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import pad, place, shard
 from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+
+PROGRAMS = {"auto": None, "general": False, "steady": True}
+"""``--program``: ``population_functions``'s ``steady`` argument."""
 
 
 def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32") -> dict:
@@ -45,7 +49,7 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
     placement = place(n, devices)
-    _, init_fn, chunk_fn = population_functions(cfg, placement)
+    _, init_fn, chunk_fn = population_functions(cfg, placement, PROGRAMS[args.program])
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
     hp = shard(pad(hp, placement), placement)
     keys = shard(pad(agent_keys(list(range(n))), placement), placement)
@@ -65,6 +69,7 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
     _, warmup = common.run_timed(warm_up)
     best = common.best_of(chunk, args.repeats)
     sps = n * args.chunk * cfg.envs_per_agent / best
+    stats = jax.devices()[0].memory_stats() or {}  # None on CPUs
     return dict(
         agents=n,
         devices=devices,
@@ -72,6 +77,8 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
         agent_steps_per_s=sps,
         seconds_per_chunk=best,
         warmup_s=warmup,
+        # the process's peak so far (this row's population and every one timed before it)
+        peak_gib=stats["peak_bytes_in_use"] / 2**30 if "peak_bytes_in_use" in stats else None,
     )
 
 
@@ -133,6 +140,15 @@ def main() -> None:
         choices=["fp32", "bf16"],
         help="learner precisions to time (AgentConfig.precision; default fp32)",
     )
+    parser.add_argument(
+        "--program",
+        default="auto",
+        choices=sorted(PROGRAMS),
+        help="the chunk's program: auto (as training picks it: the latency-bound program "
+        "for populations of at most host_loop.LATENCY_BOUND_AGENTS per GPU), general (a "
+        "lax.cond per step for warm-up and the TD3 delay, XLA's scheduling) or steady (the "
+        "latency-bound program: no conditional in the loop, overlapping kernels)",
+    )
     parser.add_argument("--name", default="bench_train", help="report file name")
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--reference", type=Path, metavar="TREE",
@@ -173,6 +189,7 @@ def main() -> None:
         **where,
         preset=args.preset,
         agent=args.agent,
+        program=args.program,
         chunk=args.chunk,
         rows=rows,
         reference=reference,

@@ -85,6 +85,8 @@ def provenance(with_jax: bool = True) -> dict[str, Any]:
 
         device = jax.devices()[0]
         record.update(backend=device.platform, device=device.device_kind, jax=jax.__version__)
+        if os.environ.get("XLA_FLAGS"):  # a number measured under other flags says so
+            record["xla_flags"] = os.environ["XLA_FLAGS"]
     return record
 
 

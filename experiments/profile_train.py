@@ -38,6 +38,7 @@ from profile_learner import busy_us, hlo_instructions, instruction_of, kind_of, 
 
 from advisor_jax.agent.config import preset
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.devices import place
 from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
 
@@ -78,7 +79,7 @@ def largest_first(totals: dict[str, float]) -> list[tuple[str, float]]:
 
 def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
     """One traced chunk of ``n_agents``, warm (compiled, past the learning start)."""
-    _, init_fn, chunk_fn = population_functions(cfg)
+    _, init_fn, chunk_fn = population_functions(cfg, place(n_agents, 1))  # training's program
     hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
     state, step = init_fn(agent_keys(list(range(n_agents)))), 0
     compiled = chunk_fn.lower(state, hp, jnp.int32(step)).compile()  # runs, and has the HLO

@@ -117,7 +117,7 @@ class Learner(NamedTuple):
     """(state, batch, hp, episode=0) -> (state, metrics): one actor update and the soft update
     of all targets; ``episode`` (episodes completed) gates the AfP replacement by N_P."""
     update: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, update_index, episode=0) ->
+    """(state, replay, sample_key, critic_key, hp, update_index, episode=0, actor=None) ->
     (state, metrics, nonfinite): one whole update (see ``make_learner``)."""
 
 
@@ -270,6 +270,7 @@ def make_learner(
         hp: HParams,
         update_index: jax.Array | int,
         episode: jax.Array | int = 0,
+        actor: bool | None = None,
     ) -> tuple[LearnerState, Metrics, jax.Array]:
         """One update (Alg. 2 steps 6-15, Alg. A3 steps 9-22): sample, critic, delayed actor.
 
@@ -279,6 +280,11 @@ def make_learner(
             the delay test ``update_index % d == 0`` then stays a scalar and ``lax.cond``
             really skips the actor step instead of computing and selecting it.
           episode: episodes the agent has completed (the N_P gate of ``actor_step``).
+          actor: None decides the delayed actor step from ``update_index`` (``lax.cond``);
+            True / False is a caller that knows it statically (``train.make_train``'s
+            steady program): the step is then compiled in, or left out, with no
+            conditional, so that a GPU can run the loop as one graph of overlapping kernels
+            (``agent.compiler_options``).
 
         Returns:
           The new state; the critic and actor metrics (the actor's NaN on updates that
@@ -288,15 +294,22 @@ def make_learner(
             batch = replay_sample(replay, sample_key, cfg.batch_size)
         with jax.named_scope("critic_step"):
             state, critic_metrics = critic_step(state, batch, critic_key, hp)
-        update_actor = update_index % cfg.delay == 0
 
         def skip_actor(s):
             return s, nan_like(jax.eval_shape(actor_step, s, batch, hp, episode)[1])
 
         with jax.named_scope("actor_step"):
-            state, actor_metrics = jax.lax.cond(
-                update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
-            )
+            if actor is None:
+                update_actor = update_index % cfg.delay == 0
+                state, actor_metrics = jax.lax.cond(
+                    update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
+                )
+            elif actor:
+                update_actor = jnp.ones((), bool)
+                state, actor_metrics = actor_step(state, batch, hp, episode)
+            else:
+                update_actor = jnp.zeros((), bool)
+                state, actor_metrics = skip_actor(state)
         nonfinite = ~_all_finite(critic_metrics) | (update_actor & ~_all_finite(actor_metrics))
         return state, {**critic_metrics, **actor_metrics}, nonfinite
 

@@ -31,6 +31,17 @@ Static schedule. The warm-up test and the TD3 delay ``update % d == 0`` depend o
 global step index, which the caller passes *unbatched* (``first_step``) and the scan derives
 from ``arange``: under ``vmap`` they stay scalars, so ``lax.cond`` really skips the actor
 update on 3 of 4 steps instead of computing it and selecting.
+
+Steady program (small populations on GPUs, ``host_loop.population_functions``). The chunk
+also holds a second program of the same steps with no conditional inside: blocks of d steps
+written out in a row, whose first step takes the actor update and whose others do not, all
+past warm-up. One ``lax.cond`` per chunk picks it when the whole chunk is past warm-up and
+starts a delay period (``steady_at``: every chunk after the first few when ``chunk_steps``
+is a multiple of d), the general program otherwise. Both run the same operations on the same
+random streams (tests/train/test_steady_program.py, experiments/steady_parity.py). Without
+conditionals the whole loop runs as one CUDA graph whose independent kernels overlap
+(``agent.compiler_options``), which a 1-agent step, a chain of ~240 small kernels, needs
+(``results/bench_train_steady/``).
 """
 
 from __future__ import annotations
@@ -110,10 +121,16 @@ class Trainer(NamedTuple):
     chunk: Any  # (state, hp, first_step) -> (state, metrics [chunk_steps])
     max_steps: int  # environment steps per env after which every agent is surely done
     schedule: phases.Schedule | None = None  # a baseline's phases before RL (None: none)
+    steady: bool = False  # whether ``chunk`` holds the steady program (module docstring)
 
 
-def make_train(cfg: TrainConfig) -> Trainer:
-    """Builds the training functions of one agent type (static config)."""
+def make_train(cfg: TrainConfig, steady: bool = False) -> Trainer:
+    """Builds the training functions of one agent type (static config).
+
+    ``steady``: also compile the chunk's steady program, chosen per chunk (see "Steady
+    program" above; ``host_loop.population_functions`` decides where it pays). It is only
+    built where it exists: a paper agent (no baseline schedule) with one update per step or
+    no delay, and chunks a whole number of delay periods long."""
     agent = cfg.agent
     env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)  # 0: arena's
     advisor = arena_advisor(env)
@@ -125,6 +142,12 @@ def make_train(cfg: TrainConfig) -> Trainer:
     collision = envs.COLLISION
     schedule = phases.make_schedule(cfg, learner, actor, env)  # None for the paper's agents
     gated = schedule is not None and schedule.gated
+    steady = (
+        steady
+        and schedule is None
+        and (cfg.updates_per_step == 1 or agent.delay == 1)
+        and cfg.chunk_steps % agent.delay == 0
+    )
     snapshot_at = jnp.asarray(cfg.snapshot_episodes, jnp.int32) if cfg.snapshot_episodes else None
 
     def init(key: jax.Array) -> TrainState:
@@ -227,8 +250,12 @@ def make_train(cfg: TrainConfig) -> Trainer:
             key=key,
         )
 
-    def learn(state: TrainState, hp: HParams, step_index: jax.Array):
+    def learn(state: TrainState, hp: HParams, step_index: jax.Array, actor: bool | None = None):
         """`updates_per_step` calls of the learner's update step (Alg. 2 / A3).
+
+        ``actor`` None: the warm-up gate and the delayed actor step are decided from
+        ``step_index`` (``lax.cond``s). True / False: the caller knows the step is past
+        warm-up and whether its updates take the actor step (the steady program below).
 
         Returns the new state, the mean metrics of the updates (NaN where nothing was
         computed) and whether any computed loss was non-finite.
@@ -240,7 +267,7 @@ def make_train(cfg: TrainConfig) -> Trainer:
             key, k_sample, k_critic = jax.random.split(key, 3)
             index = step_index * cfg.updates_per_step + u  # unbatched: a static schedule
             learner_state, metrics, bad = learner.update(
-                learner_state, state.replay, k_sample, k_critic, hp, index, state.episodes
+                learner_state, state.replay, k_sample, k_critic, hp, index, state.episodes, actor
             )
             return (learner_state, key), (metrics, bad)
 
@@ -254,8 +281,13 @@ def make_train(cfg: TrainConfig) -> Trainer:
             metrics = jax.eval_shape(run_updates, learner_state)[1]
             return learner_state, nan_like(metrics), jnp.zeros((), bool)
 
-        ready = (step_index + 1) * n_envs >= agent.warmup  # unbatched: same for all agents
-        learner_state, metrics, bad = jax.lax.cond(ready, run_updates, no_updates, state.learner)
+        if actor is None:
+            ready = (step_index + 1) * n_envs >= agent.warmup  # unbatched: same for all agents
+            learner_state, metrics, bad = jax.lax.cond(
+                ready, run_updates, no_updates, state.learner
+            )
+        else:
+            learner_state, metrics, bad = run_updates(state.learner)
         return state.replace(learner=learner_state, key=key), metrics, bad
 
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array, gate=None):
@@ -268,7 +300,7 @@ def make_train(cfg: TrainConfig) -> Trainer:
         if gated and gate is None:
             gate = phases.population_gate(schedule, state, hp, n_total, cfg.chunk_steps)
 
-        def body(state: TrainState, i):
+        def body(state: TrainState, i, actor: bool | None = None):
             active = (state.episodes < n_total) & ~state.diverged
             frozen_hp = hp.replace(
                 lr_actor=hp.lr_actor * active,
@@ -283,7 +315,7 @@ def make_train(cfg: TrainConfig) -> Trainer:
                 with jax.named_scope("collect"):
                     state = collect(state, hp, active)
                 with jax.named_scope("learn"):
-                    state, metrics, nonfinite = learn(state, frozen_hp, first_step + i)
+                    state, metrics, nonfinite = learn(state, frozen_hp, first_step + i, actor)
             else:  # the phase at the start of the step decides both halves
                 phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
                 state = collect(state, hp, active, phase, gate)
@@ -297,12 +329,43 @@ def make_train(cfg: TrainConfig) -> Trainer:
             return state, metrics
 
         steps = jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
-        return jax.lax.scan(body, state, steps)
+        if not steady:
+            return jax.lax.scan(body, state, steps)
+
+        def steady_chunk(state: TrainState):
+            """The same steps without a conditional: blocks of d steps written out one after
+            the other (not a nested scan, which ran slower), the first with the actor update,
+            all past warm-up (valid when ``steady_at(first_step)``)."""
+
+            def block(state: TrainState, first: jax.Array):
+                metrics = []
+                for j in range(agent.delay):
+                    state, m = body(state, first + j, actor=j == 0)
+                    metrics.append(m)
+                return state, jax.tree.map(lambda *ms: jnp.stack(ms), *metrics)
+
+            state, metrics = jax.lax.scan(block, state, steps[:: agent.delay])
+            return state, jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), metrics)
+
+        def general_chunk(state: TrainState):
+            return jax.lax.scan(body, state, steps)
+
+        # One conditional per chunk (its predicate is unbatched), none inside the steady loop.
+        steady_now = steady_at(first_step, n_envs, agent.warmup, agent.delay)
+        return jax.lax.cond(steady_now, steady_chunk, general_chunk, state)
 
     max_steps = math.ceil(n_total / n_envs) * env.max_episode_steps
     if schedule is not None:  # offline phases take scan steps without env steps
         max_steps += schedule.offline_steps
-    return Trainer(init=init, chunk=chunk, max_steps=max_steps, schedule=schedule)
+    return Trainer(init=init, chunk=chunk, max_steps=max_steps, schedule=schedule, steady=steady)
+
+
+def steady_at(first_step, n_envs: int, warmup: int, delay: int):
+    """Whether a chunk whose first step is global step ``first_step`` may run the steady
+    program: every one of its steps is past warm-up (the buffer holds ``warmup``
+    transitions of ``n_envs`` envs) and it starts a delay period, so its actor updates
+    (every ``delay``-th, counted from step 0) fall on the heads of its blocks."""
+    return ((first_step + 1) * n_envs >= warmup) & (first_step % delay == 0)
 
 
 def _no_snapshots(actor, snapshot_at: jax.Array) -> ActorSnapshots:
