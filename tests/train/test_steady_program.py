@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from advisor_jax.agent.config import parse_agent
-from advisor_jax.training.devices import Placement
+from advisor_jax.training import host_loop
+from advisor_jax.training.devices import Placement, place
 from advisor_jax.training.host_loop import LATENCY_BOUND_AGENTS, latency_bound, population_functions
 from advisor_jax.training.population import agent_keys
 from advisor_jax.training.train import make_train, steady_at
@@ -150,3 +151,11 @@ def test_a_chunk_computes_the_general_programs_steps(
     np.testing.assert_array_equal(
         general_metrics["train/episodes"], steady_metrics["train/episodes"]
     )
+
+
+def test_population_functions_pick_the_program_from_the_placement(monkeypatch):
+    asked = []
+    monkeypatch.setattr(host_loop, "latency_bound", lambda p: asked.append(p) or True)
+    trainer, _, _ = host_loop.population_functions(TINY, place(3, 1))
+    assert asked == [place(3, 1)] and trainer.steady  # as on a GPU
+    assert not host_loop.population_functions(TINY, place(3, 1), steady=False)[0].steady
