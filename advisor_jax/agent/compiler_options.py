@@ -1,8 +1,8 @@
 """XLA compile options for the jitted programs that hold a learner (issue 17).
 
-``jax.jit(fn, compiler_options=compiler_options(cfg.precision, steady=...))`` is how the
-training chunk (``training.host_loop.population_functions``) and the learner benchmarks
-compile. The options belong to one program, never to the process: a user's ``XLA_FLAGS``
+``jax.jit(fn, compiler_options=compiler_options(cfg.precision, overlap=..., steady=...))``
+is how the training chunk (``training.host_loop.population_functions``) and the learner
+benchmarks compile. The options belong to one program, never to the process: a user's ``XLA_FLAGS``
 and other jitted functions are left alone. CPUs get none (their programs are unchanged).
 
 On GPUs, three settings, measured on one H100 (ATD3+AfDP, paper sizes, batch 1000, against
