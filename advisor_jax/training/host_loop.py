@@ -95,6 +95,7 @@ def run_training(
     program: tuple | None = None,
     devices: int | None = None,
     eval_seed: int | None = None,
+    points: Sequence[Mapping[str, float]] | None = None,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
@@ -107,6 +108,8 @@ def run_training(
     a checkpoint and re-raises KeyboardInterrupt (``runlock.Interrupted`` for SIGTERM).
     ``eval_seed`` keys the evaluation episodes (None: the first seed); runs given the same
     one are evaluated on the same episodes, so their agents can be pooled and paired.
+    ``points``: explicit grid points in place of the product of ``grid``'s values
+    (``population.build_population``); ``grid`` then names the swept hyperparameters.
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -125,7 +128,9 @@ def run_training(
                 f"unknown {what} {', '.join(map(repr, unknown))}; choose from "
                 f"{', '.join(envs.ARENAS)}"
             )
-    hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
+    hp, agents = build_population(
+        base_hp, grid, seeds, points
+    )  # checks the seeds and hyperparameters
     eval_from = check_seed(seeds[0] if eval_seed is None else eval_seed, "eval_seed")
     baseline = cfg.agent.baseline
     check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)

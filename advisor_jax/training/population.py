@@ -53,12 +53,18 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
 
 
 def build_population(
-    base: HParams, grid: Mapping[str, Sequence[float]], seeds: Sequence[int]
+    base: HParams,
+    grid: Mapping[str, Sequence[float]],
+    seeds: Sequence[int],
+    points: Sequence[Mapping[str, float]] | None = None,
 ) -> tuple[HParams, list[dict]]:
     """Cartesian product of ``grid`` (first key slowest) × ``seeds`` (fastest).
 
-    Returns the stacked hyperparameters (every leaf float32 [agents]) and one row per agent:
-    ``{"index", "seed", **hyperparameters}``.
+    ``points``: the grid points to train, each ``{name: value}`` over exactly ``grid``'s
+    names, in place of the product of ``grid``'s values (a study's piece holds a subset of
+    points, or points whose values depend on each other). Returns the stacked
+    hyperparameters (every leaf float32 [agents]) and one row per agent: ``{"index", "seed",
+    **hyperparameters}``.
     """
     if not seeds:
         raise ValueError("need at least one seed")
@@ -70,8 +76,16 @@ def build_population(
         if len(values) == 0:
             raise ValueError(f"empty value list for {name!r}")
     names = list(grid)
+    combos = list(itertools.product(*(grid[n] for n in names)))
+    if points is not None:
+        for point in points:
+            if set(point) != set(names):
+                raise ValueError(f"grid point {dict(point)} must set exactly {names}")
+        combos = [tuple(point[n] for n in names) for point in points]
+        if not combos:
+            raise ValueError("need at least one grid point")
     rows = []
-    for values in itertools.product(*(grid[n] for n in names)):
+    for values in combos:
         for seed in seeds:
             hp = dataclasses.replace(base, **dict(zip(names, values, strict=True)))
             rows.append({"seed": int(seed), **{n: float(getattr(hp, n)) for n in HPARAM_NAMES}})
