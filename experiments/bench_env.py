@@ -23,13 +23,13 @@ import pathlib
 import re
 import sys
 
-import common
 import jax
 import jax.numpy as jnp
 import numpy as np
 import tyro
 
 import envs
+from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 
 
@@ -125,7 +125,7 @@ def bench_step(env, n: int, steps: int, repeats: int) -> dict:
         state, done = jax.lax.scan(body, state, None, length=steps)
         return state, jnp.mean(done)
 
-    first, best = common.first_and_best(lambda: run(state, action), repeats)
+    first, best = measure.first_and_best(lambda: run(state, action), repeats)
     _, done_rate = run(state, action)
     per_env_state = sum(x.nbytes for x in jax.tree_util.tree_leaves(state)) / n
     cost = _cost(jax.jit(step), state, action)  # one step: XLA counts a scan body once
@@ -195,7 +195,7 @@ def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
     ):
         if "mjx.step" in name and env.procedural:
             continue  # needs the per-env model; the fixed-arena comparison suffices
-        _, best = common.first_and_best(functools.partial(fn, *args), repeats)
+        _, best = measure.first_and_best(functools.partial(fn, *args), repeats)
         out[name] = {"steps_per_s": n * steps / best, "seconds": best}
     return out
 
@@ -222,13 +222,13 @@ def check_parity(env, poses: int = 100) -> float:
 
 def main(args: Args) -> dict:
     env = envs.make_env(args.arena)
-    where = common.provenance()
+    where = measure.provenance()
     result = {
         **where,
         "arena": args.arena,
         "device": f"{where['backend']}: {where['device']}",  # the format of the runs recorded
         "date": args.date or where["date"],
-        "command": common.command_line("experiments/bench_env.py", sys.argv[1:]),
+        "command": writing.command_line("experiments/bench_env.py", sys.argv[1:]),
         "steps_per_scan": args.steps,
         "rows": [],
     }
@@ -253,8 +253,8 @@ def main(args: Args) -> dict:
         print("breakdown", result["breakdown"], flush=True)
     if args.ceiling:
         result["ceiling"] = {  # 1 GiB; 8192² fp32 at JAX's default precision
-            "copy_bytes_per_s": common.copy_ceiling(2**30, args.repeats),
-            "matmul_flops_per_s": common.matmul_ceiling(8192, args.repeats),
+            "copy_bytes_per_s": measure.copy_ceiling(2**30, args.repeats),
+            "matmul_flops_per_s": measure.matmul_ceiling(8192, args.repeats),
         }
         print("ceiling", result["ceiling"], flush=True)
     write(result, pathlib.Path(args.out), append=args.append)
@@ -280,7 +280,7 @@ def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     ]
     for run in runs:
         lines += _section(run)
-    common.write_markdown(out.with_suffix(".md"), lines)
+    writing.write_markdown(out.with_suffix(".md"), lines)
 
 
 def _section(result: dict) -> list[str]:
@@ -292,7 +292,7 @@ def _section(result: dict) -> list[str]:
         f"date {result['date']}; {result['steps_per_scan']} steps per scan",
         f"- command: `{result['command']}`",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("envs", "M steps/s", "done/step", "state B/env", "kernel I/O B/step",
              "XLA FLOP/step", "XLA B accessed/step"),
             [(r["envs"], r["steps_per_s"] / 1e6, r["done_per_step"], r["state_bytes_per_env"],

@@ -16,7 +16,7 @@ Measures, per call, after a warm-up (time.perf_counter_ns around each call):
   ``compute_ms`` it logs per cycle (sources → watchdog, observation, MLP, drive → motor).
 
 The policy is a freshly initialised paper-size actor exported with ``advisor_jax.deploy.export``
-in a child process (``common.load_paper_actor``: this script needs JAX, but the timed process
+in a child process (``car_subject.load_paper_actor``: this script needs JAX, but the timed process
 never imports it).
 Writes a markdown table.
 
@@ -35,9 +35,9 @@ import tempfile  # noqa: E402
 import timeit  # noqa: E402
 import types  # noqa: E402
 
-import common  # noqa: E402
 import numpy as np  # noqa: E402
 
+from advisor_jax.bench import car_subject, measure, writing  # noqa: E402
 from advisor_jax.contract.zones import reduce_to_zones  # noqa: E402
 from advisor_jax.runner.cyclelog import (  # noqa: E402
     JsonlLog,
@@ -116,9 +116,9 @@ def main() -> None:
     parser.add_argument("--out", default="results/bench_runner.md")
     args = parser.parse_args()
 
-    policy = common.load_paper_actor()
+    policy = car_subject.load_paper_actor()
     rng = np.random.default_rng(0)
-    scans = [common.synthetic_scan(rng, 0.0) for _ in range(64)]
+    scans = [car_subject.synthetic_scan(rng, 0.0) for _ in range(64)]
     cfg = ObservationConfig(range_offset=policy.range_offset, bounds=policy.bounds)
     controller = Controller(
         policy,
@@ -127,7 +127,7 @@ def main() -> None:
         LoopConfig(max_scan_age=1e9, max_pose_age=1e9),
     )
 
-    poses = common.swinging_poses(
+    poses = car_subject.swinging_poses(
         max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles)
     )
 
@@ -146,7 +146,7 @@ def main() -> None:
     def run(cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None) -> dict:
         for b in (*builders, controller.builder):
             b.reset()
-        return common.per_call_us(cases, iters, warmup, pause, before)
+        return measure.per_call_us(cases, iters, warmup, pause, before)
 
     pieces = {
         "obs (200-point scan → 20-d)": lambda i: builders[0].build(scans[i % 64], poses[i]),
@@ -202,15 +202,15 @@ def main() -> None:
     target = rows[0]
     met = target[4] <= 200.0
     threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    command = common.command_line(
-        "experiments/bench_runner.py", common.changed_options(parser, args), scheduling=True
+    command = writing.command_line(
+        "experiments/bench_runner.py", writing.changed_options(parser, args), scheduling=True
     )
-    where = common.provenance(with_jax=False)
+    where = measure.provenance(with_jax=False)
     lines = [
         "# Runner latency (numpy-only car runner)",
         "",
         f"Date: {where['date']}. Machine: {where['cpu']}, {where['cpu_count']} cores "
-        f"({common.virtualisation()}), Linux, "
+        f"({measure.virtualisation()}), Linux, "
         f"Python {where['python']}, numpy {where['numpy']} (OpenBLAS), BLAS threads "
         f"env {threads} (advisor-jax-car sets OPENBLAS_NUM_THREADS=1 the same way).",
         f"Load average (1 min) before/after: {load_before:.1f} / {load_after:.1f} on "
@@ -223,7 +223,7 @@ def main() -> None:
         "",
         f"Command: `{command}`",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("what (µs per call, wall clock)", "calls", "p50", "p90", "p99", "max", "block p99s"),
             rows,
             formats=("", "", ".1f", ".1f", ".1f", ".1f", ""),
@@ -259,7 +259,7 @@ def main() -> None:
         "that does nothing, with the loop's JSONL log written as on the car.",
         "",
     ]
-    common.write_markdown(args.out, lines)
+    writing.write_markdown(args.out, lines)
 
 
 if __name__ == "__main__":

@@ -21,13 +21,13 @@ import json
 import pathlib
 import sys
 
-import common
 import jax
 import numpy as np
 import tyro
 
 import envs
 from advisor_jax.agent.advisor import advisor_action, arena_advisor
+from advisor_jax.bench import measure, writing
 from advisor_jax.evaluation.evaluate import make_evaluate, summary
 from advisor_jax.fileio import atomic_write_json
 
@@ -60,7 +60,7 @@ def run(arena: str, episodes: int, seeds: tuple[int, ...], **overrides) -> list[
     rows = []
     for seed in seeds:
         key = jax.random.PRNGKey(seed)
-        rates, seconds = common.run_timed(
+        rates, seconds = measure.run_timed(
             lambda key=key: summary(evaluate_fn(arena_advisor(env), key))
         )
         row = {"arena": arena, "seed": seed, **overrides, **rates, "seconds": round(seconds, 1)}
@@ -71,11 +71,11 @@ def run(arena: str, episodes: int, seeds: tuple[int, ...], **overrides) -> list[
 
 def main(args: Args) -> dict:
     default_omega = envs.EnvConfig().omega_max
-    where = common.provenance()
+    where = measure.provenance()
     result = {
         **where,
         "date": args.date or where["date"],
-        "command": common.command_line("experiments/calibrate_advisor.py", sys.argv[1:]),
+        "command": writing.command_line("experiments/calibrate_advisor.py", sys.argv[1:]),
         "machine": f"{where['host']}, {where['cpu_count']} CPUs, {where['device']}",
         "omega_max_default": default_omega,
         "main": [],
@@ -119,7 +119,7 @@ def write(result: dict, out: pathlib.Path) -> None:
         "- each episode: random collision-free start (uniform position and heading) and goal "
         "≥ 1 m away; deterministic advisor; the first episode of each parallel env counts",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("arena", "episodes", "success", "collision", "timeout", "mean collision speed",
              "paper"),
             [(r["arena"], r["episodes"], *_rates(r), _speed(r["mean_collision_speed"]),
@@ -147,12 +147,12 @@ def write(result: dict, out: pathlib.Path) -> None:
         default = [r for r in result["main"] if r["arena"] in ("training", "validation")]
         rows = result["omega"] + [dict(r, omega_max=result["omega_max_default"]) for r in default]
         rows.sort(key=lambda r: (r["arena"], r["omega_max"]))
-        lines += common.markdown_table(
+        lines += writing.markdown_table(
             ("arena", "ω_max (rad/s)", "success", "collision", "timeout"),
             [(r["arena"], r["omega_max"], *_rates(r)) for r in rows],
             formats=("", "g", ""),
         )
-    common.write_markdown(out.with_suffix(".md"), lines)
+    writing.write_markdown(out.with_suffix(".md"), lines)
 
 
 if __name__ == "__main__":
