@@ -234,7 +234,9 @@ def run_local(
 
 
 def _start(study, out, piece, device, bar, total) -> _Worker:
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    here = str(Path(__file__).resolve().parents[2])  # the worker runs this very package
+    paths = [here, *(p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p)]
+    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.pathsep.join(paths))
     if device.index is not None:
         env["CUDA_VISIBLE_DEVICES"] = str(device.index)
     command = [

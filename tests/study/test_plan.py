@@ -50,7 +50,8 @@ def test_split_group_covers_every_agent_once(points, seeds, count, expected):
 
 def _study(tmp_path, grid="[0, 10, 20, 30]", seeds=16, extra=""):
     path = tmp_path / "s.toml"
-    path.write_text(textwrap.dedent(f"""
+    path.write_text(
+        textwrap.dedent(f"""
         [study]
         preset = "paper"
         agents = ["ADDPG+AfD"]
@@ -60,7 +61,8 @@ def _study(tmp_path, grid="[0, 10, 20, 30]", seeds=16, extra=""):
         {extra}
         [grid]
         advisor_episodes = {grid}
-    """))
+    """)
+    )
     return load_study(path)
 
 
@@ -78,7 +80,10 @@ def test_a_piece_holds_what_fits_one_device(tmp_path):
 
 def test_a_study_whose_agent_does_not_fit_is_refused(tmp_path):
     s = _study(tmp_path)
-    with pytest.raises(StudyError, match=r"one agent of ADDPG\+AfD needs 1\.0 GiB with the process, more than the 0\.8"):
+    with pytest.raises(
+        StudyError,
+        match=r"one agent of ADDPG\+AfD needs 1\.0 GiB with the process, more than the 0\.8",
+    ):
         planning.plan_study(s, planning.Device("gpu", GIB, 0))
 
 
@@ -94,11 +99,10 @@ def test_pieces_spread_over_devices_down_to_the_minimum(tmp_path):
     assert max(p.agents for p in capped.pieces) <= 20
 
 
+ROW = {"device": "G", "precision": "fp32", "size": "paper"}
 TABLE = {
-    "rows": [
-        {"device": "G", "precision": "fp32", "size": "paper", "agents": 1, "agent_steps_per_s": 100.0},
-        {"device": "G", "precision": "fp32", "size": "paper", "agents": 16, "agent_steps_per_s": 1600.0},
-    ],
+    "rows": [{**ROW, "agents": 1, "agent_steps_per_s": 100.0},
+             {**ROW, "agents": 16, "agent_steps_per_s": 1600.0}],
     "agent_types": {"training": {"ADDPG+AfD": {"relative_speed": 0.5, "steps_per_episode": 50.0}}},
 }  # fmt: skip
 

@@ -35,24 +35,32 @@ def test_the_quick_study_reads():
 
 
 def test_shares_of_n_total_follow_each_static_combination(tmp_path):
-    s = study(tmp_path, HEAD + """
+    s = study(
+        tmp_path,
+        HEAD
+        + """
         [static]
         episodes = [20, 40]
         [grid]
         advisor_episodes = ["0.25 * episodes", "episodes"]
-    """)
+    """,
+    )
     assert [g.static for g in s.groups] == [{"episodes": 20}, {"episodes": 40}]
     assert [p["advisor_episodes"] for g in s.groups for p in g.points] == [5, 20, 10, 40]
 
 
 def test_eps_decay_reaching_zero_at_half_n_t_at_n_t_and_never(tmp_path):
-    s = study(tmp_path, HEAD + """
+    s = study(
+        tmp_path,
+        HEAD
+        + """
         [hp]
         advisor_episodes = 20
         [grid]
         eps_start = [0.5, 1.0]
         eps_decay = ["eps_start / (advisor_episodes / 2)", "eps_start / advisor_episodes", 0]
-    """)
+    """,
+    )
     decays = [(p["eps_start"], p["eps_decay"]) for p in s.groups[0].points]
     assert decays == [(0.5, 0.05), (0.5, 0.025), (0.5, 0.0), (1.0, 0.1), (1.0, 0.05), (1.0, 0.0)]
     assert s.groups[0].hp == {"advisor_episodes": 20.0}
