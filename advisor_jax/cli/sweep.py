@@ -142,6 +142,6 @@ def sweep_command(args: SweepArgs) -> None:
             "are kept: run the same command again to retry them"
         )
     console.print(
-        f"all {len(plan.pieces)} pieces finished in {args.out / 'runs'}; next: "
+        f"{len(plan.pieces)} of {len(plan.pieces)} pieces finished in {args.out / 'runs'}; next: "
         f"advisor-jax report {args.out} --out REPORT"
     )
