@@ -87,3 +87,28 @@ def test_the_command_refuses_runs_on_other_episodes_in_one_line(tmp_path, capsys
     with pytest.raises(SystemExit):
         main(["report", str(tmp_path), "--out", str(tmp_path / "r"), "--items", "fig12"])
     assert "unknown item 'fig12'" in capsys.readouterr().err
+
+
+def test_budget_figures_hold_the_advisor_share_and_eps_its_grid(tmp_path):
+    for n in (100, 200):
+        for share in (0.25, 0.5):
+            write_run(tmp_path, f"afd{n}_{share}", "ADDPG+AfD", [0, 1, 2], [0.5, 0.6, share],
+                      episodes=n, hp={"advisor_episodes": share * n})  # fmt: skip
+        write_run(tmp_path, f"ddpg{n}", "DDPG", [0, 1, 2], [0.4, 0.5, n / 400], episodes=n)
+    for name, start, decay in (("h", 1.0, 0.008), ("n", 1.0, 0.004), ("z", 1.0, 0.0)):
+        write_run(tmp_path, name, "ADDPG+AfD", [0, 1, 2], [0.5, 0.6, 0.7],
+                  hp={"eps_start": start, "eps_decay": decay})  # fmt: skip
+    out = tmp_path / "report"
+    make_report([tmp_path], out, items=["fig7", "fig11", "eps"], say=lambda m: 0)
+    fig7 = json.loads((out / "fig7.json").read_text())
+    budgets = [[p["episodes"] for p in s["points"]] for s in fig7["series"]]
+    assert budgets == [[100, 200], [100, 200]]  # one line per share, N_total along it
+    shares = {s["label"] for s in fig7["series"]}
+    assert len(shares) == 2
+    fig11 = json.loads((out / "fig11.json").read_text())
+    ddpg = [s for s in fig11["series"] if s["label"].startswith("DDPG")]
+    assert [p["training"]["per_seed"][2] for p in ddpg[0]["points"]] == [0.25, 0.5]
+    eps = json.loads((out / "eps.json").read_text())
+    rules = [p["eps_reaches_zero"] for p in eps["series"][0]["points"]]
+    assert sorted(rules) == ["N_T", "N_T/2", "never"]
+    assert all((out / f"{n}.png").is_file() for n in ("fig7", "fig11", "eps"))

@@ -12,7 +12,7 @@ import numpy as np
 
 from advisor_jax import stats
 from advisor_jax.agent.config import PAPER_AGENTS, parse_agent
-from advisor_jax.analysis.runs import Point
+from advisor_jax.analysis.runs import Point, _show
 
 ARENAS = ("training", "validation")
 BASELINES = ("LfD", "MCP+MF")
@@ -78,6 +78,24 @@ def simulated(points: Iterable[Point]) -> list[Point]:
 def key_without(point: Point, names: Sequence[str]) -> tuple:
     """The point's agent and settings except ``names`` (what a series holds constant)."""
     return (point.agent, tuple((k, v) for k, v in sorted(point.settings.items()) if k not in names))
+
+
+def shared_label(points: Sequence[Point]) -> dict:
+    """The settings (beyond the preset) every one of ``points`` has alike."""
+    if not points:
+        return {}
+    first = points[0].label
+    return {k: v for k, v in first.items() if all(p.label.get(k) == v for p in points)}
+
+
+def shared_text(points: Sequence[Point]) -> str:
+    """One sentence naming the presets and the settings every row shares."""
+    presets = sorted({p.preset for p in points})
+    shared = shared_label(points)
+    text = f"Preset {', '.join(f'`{p}`' for p in presets)}"
+    if shared:
+        text += "; every row also has " + ", ".join(f"{k}={_show(v)}" for k, v in shared.items())
+    return text + "."
 
 
 def point_record(point: Point, arenas: Sequence[str] = ARENAS, key: str = "success") -> dict:

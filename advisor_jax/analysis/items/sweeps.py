@@ -54,8 +54,19 @@ def _value(point: Point, name: str) -> float:
     return point.budget if name == "episodes" else point.settings[name]
 
 
+SHARE_NAMES = {"advisor_episodes": "N_T", "demo_episodes": "D", "random_episodes": "R",
+               "mpc_episodes": "M", "dagger_episodes": "DAgger"}  # fmt: skip
+
+
 def _title(point: Point, skip: tuple[str, ...]) -> str:
-    return point.text(skip=skip) + f", {point.budget} ep" * ("episodes" not in skip)
+    """The series' label: its settings but ``skip``, its budget (unless that is the x axis)
+    or, along N_total, the budget-scaled counts as shares of it."""
+    text = point.text(skip=skip)
+    if "episodes" not in skip:
+        return text + f", {point.budget} ep"
+    shares = [f"{SHARE_NAMES[n]} = {100 * point.settings[n] / point.budget:.0f} %"
+              for n in _shares_read(point.agent) if n in skip]  # fmt: skip
+    return ", ".join([text, *shares])
 
 
 def _curve(ax, members: list[Point], x_of, arena: str, color, label: str) -> None:
@@ -121,12 +132,20 @@ def fig6(points: list[Point], context) -> Item | None:
     )
 
 
-def _share_key(point: Point, extra: tuple[str, ...] = ()) -> tuple:
-    """Agent and settings with the budget-scaled counts as shares of the budget."""
-    base = key_without(point, BUDGET_SHARES + extra)
-    shares = tuple(
-        round(point.settings[n] / point.budget, 3) for n in BUDGET_SHARES if n not in extra
-    )
+def _shares_read(agent: str) -> tuple[str, ...]:
+    """The budget-scaled counts ``agent`` reads: N_T with AfD, a baseline's prior episodes."""
+    if agent == "LfD":
+        return ("demo_episodes",)
+    if agent == "MCP+MF":
+        return ("random_episodes", "mpc_episodes", "dagger_episodes")
+    return ("advisor_episodes",) if uses_advisor_data(agent) else ()
+
+
+def _share_key(point: Point) -> tuple:
+    """Agent and settings, with the budget-scaled counts it reads as shares of the budget
+    (the others, which it ignores, left out)."""
+    base = key_without(point, BUDGET_SHARES)
+    shares = tuple(round(point.settings[n] / point.budget, 3) for n in _shares_read(point.agent))
     return base, shares
 
 

@@ -28,6 +28,8 @@ from advisor_jax.analysis.items.base import (
     point_record,
     scores,
     seeds_with_ci,
+    shared_label,
+    shared_text,
     simulated,
 )
 from advisor_jax.analysis.runs import Point
@@ -106,6 +108,7 @@ def table1(points: list[Point], context) -> Item | None:
     found = claims(rows)
     record = {"points": [], "claims": found}
     table = []
+    shared = tuple(shared_label(rows))
     for r in rows:
         speed = scores(r, "training", "collision_speed")
         below = sum(v < ADVISOR_LEVEL for v in scores(r, "training"))
@@ -123,7 +126,7 @@ def table1(points: list[Point], context) -> Item | None:
         )
         table.append(
             (
-                r.text(),
+                r.text(skip=shared),
                 r.budget,
                 f"{len(r.seeds)}" + (f" ({diverged} diverged)" if diverged else ""),
                 *(f"{cell(scores(r, a))} / {iqm_cell(scores(r, a))}" for a in ARENAS),
@@ -133,6 +136,7 @@ def table1(points: list[Point], context) -> Item | None:
             )
         )
     lines = [
+        shared_text(rows) + " "
         f"Evaluation success (%) per seed of the final actors: {interval_note(rows)} / IQM "
         "[95 % stratified-bootstrap interval]; every row on the same evaluation episodes.",
         "",

@@ -29,6 +29,8 @@ from advisor_jax.analysis.items.base import (
     point_record,
     scores,
     seeds_with_ci,
+    shared_label,
+    shared_text,
 )
 from advisor_jax.analysis.runs import Point
 
@@ -123,6 +125,7 @@ def table2(points: list[Point], context) -> Item | None:
     best = next((r for r in rows if r["agent"] == BEST), None)
     record = {"budgets": budgets, "agents": [], "versus_best": [], "afp_collision_speed": []}
     table, table3 = [], []
+    shared = tuple(shared_label([r["main"] for r in rows]))
     advisor = context.advisors.get(ARENA)
     if advisor:
         p = PAPER_TABLE3["Advisor"]
@@ -146,7 +149,7 @@ def table2(points: list[Point], context) -> Item | None:
         paper = PAPER_TABLE2.get(r["agent"])
         table.append(
             (
-                r["main"].text(skip=("episodes",)),
+                r["main"].text(skip=("episodes", *shared)),
                 *(
                     cell(scores(r["budgets"][n], ARENA)) + f" {marks[n]}".rstrip()
                     if n in r["budgets"]
@@ -184,6 +187,7 @@ def table2(points: list[Point], context) -> Item | None:
                     record["versus_best"].append({"other": r["agent"], "episodes": n, **diff})
     record["afp_collision_speed"] = _afp_collisions(rows, budgets[-1])
     lines = [
+        shared_text([r["main"] for r in rows]) + " "
         f"Success in the {ARENA} arena (%), {interval_note([r['main'] for r in rows])}; "
         f"{NO_RL}: the baseline's prior phases fill that budget (no RL yet); {SEPARATE}: a "
         "separate run of that many episodes in place of the kept actor.",

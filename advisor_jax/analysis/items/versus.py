@@ -58,7 +58,7 @@ def _side(point: Point) -> dict:
     training = scores(point, "training")
     return {
         **point_record(point),
-        "worst": min(training, default=None),
+        "worst": 100 * min(training) if training else None,
         "below_advisor": sum(v < ADVISOR_LEVEL for v in training),
         "q_over_bound": sum(a["q_over_bound_at"] is not None for a in analysed),
         "max_q": max(max_q, default=None),
@@ -110,7 +110,7 @@ def versus(points: list[Point], context) -> Item | None:
                     f"{d['probability_of_improvement']:.2f}" if d else "–"
                     for d in (diffs.get(a) for a in ARENAS)
                 ),
-                pair("worst", ".2f"),
+                pair("worst", ".0f"),
                 pair("below_advisor", "d"),
                 pair("q_over_bound", "d"),
                 pair("max_q", ".1f"),
@@ -131,7 +131,7 @@ def versus(points: list[Point], context) -> Item | None:
                 "difference, training",
                 "difference, validation",
                 "P(>)",
-                "worst seed",
+                "worst seed (%)",
                 "below advisor",
                 "Q > bound",
                 "max Q",
@@ -222,12 +222,16 @@ def _mode(point: Point) -> str:
 
 
 def afp(points: list[Point], context) -> Item | None:
+    controls = set(CONTROL_OF.values())
     shown = ordered(p for p in points if p.agent in CONTROL_OF and "training" in _arenas(p))
     if not shown:
         return None
+    shown = ordered(
+        [*shown, *(p for p in points if p.agent in controls and "training" in _arenas(p))]
+    )
     record, table = {"points": []}, []
     for p in shown:
-        control = _control(p, points)
+        control = _control(p, points) if p.agent in CONTROL_OF else None
         effect = {}
         if control is not None:
             for arena in ARENAS:
@@ -246,6 +250,9 @@ def afp(points: list[Point], context) -> Item | None:
                 "effect": effect,
                 "diagnostics": mean_diag,
                 "collapsed": {a: sum(v < ADVISOR_LEVEL for v in scores(p, a)) for a in ARENAS},
+                "eval_timeout_training": stats.t_interval(
+                    scores(p, "training", "timeout")
+                ).estimate,
             }
         )
         table.append(
@@ -258,6 +265,7 @@ def afp(points: list[Point], context) -> Item | None:
                 " / ".join(str(sum(v < ADVISOR_LEVEL for v in scores(p, a))) for a in ARENAS),
                 *(_effect(effect.get(a)) for a in ARENAS),
                 *(_num(mean_diag[d]) for d in DIAGNOSTICS),
+                _num(stats.t_interval(scores(p, "training", "timeout")).estimate),
             )
         )
     lines = [
@@ -266,7 +274,7 @@ def afp(points: list[Point], context) -> Item | None:
         "but β), success points: paired by seed where they share seeds (mean ± 95 %), else "
         "[Welch 95 % interval]; and the learner's diagnostics in each seed's last training "
         "chunk, mean over seeds (replaced share, ‖Eq. 2 step‖, rms ‖∇ₐQ‖, Q(s, a_adv) − "
-        "Q(s, Â), saturated heads).",
+        "Q(s, Â), saturated heads); the share of timeouts in the training-arena evaluation.",
         "",
         *markdown_table(
             [
@@ -280,6 +288,7 @@ def afp(points: list[Point], context) -> Item | None:
                 "AfP effect, training",
                 "AfP effect, validation",
                 *DIAGNOSTICS,
+                "eval timeouts",
             ],
             table,
         ),
@@ -309,6 +318,7 @@ def _num(x) -> str:
 
 
 def _plot_afp(shown: list[Point], points: list[Point]):
+    shown = [p for p in shown if p.agent in CONTROL_OF]
     agents = list(dict.fromkeys(p.agent for p in shown))
     budgets = sorted({p.budget for p in shown}, reverse=True)
     columns = [(n, a) for n in budgets for a in ARENAS]
