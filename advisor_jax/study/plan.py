@@ -12,9 +12,9 @@ most as many agents as fit one device:
 
 (4 bytes a number). The formula errs high: at ``paper`` sizes it gives 75.6 MB per agent,
 where the measured peak grows by 54-66 MB per agent (``results/bench_train_largest/``).
-Groups are then split further, down to ``MIN_AGENTS`` per piece, while a piece would take
-longer than an even share of the study on the devices at hand, and the pieces are put on
-devices longest first. Times come from ``throughput`` (measured rates, not guesses), or are
+Groups are then split further, down to ``MIN_AGENTS`` per piece, while splitting the
+longest piece's group shortens the study on the devices at hand (pieces put on devices
+longest first). Times come from ``throughput`` (measured rates, not guesses), or are
 left out where nothing was measured for that device.
 """
 
@@ -140,10 +140,20 @@ class Plan:
         """Seconds until the last device is done, pieces placed longest first."""
         if any(p.seconds is None for p in self.pieces):
             return None
-        loads = [0.0] * self.devices
-        for p in sorted(self.pieces, key=lambda p: -p.seconds):
-            loads[loads.index(min(loads))] += p.seconds
-        return max(loads, default=0.0)
+        return _makespan(self.pieces, self.devices)
+
+
+def _work(piece: Piece) -> float:
+    """A piece's estimated seconds, else its agents (a proxy where nothing was measured)."""
+    return piece.seconds if piece.seconds is not None else piece.agents
+
+
+def _makespan(pieces, devices: int) -> float:
+    """When the last of ``devices`` is done, pieces placed longest first on the least loaded."""
+    loads = [0.0] * devices
+    for p in sorted(pieces, key=lambda p: -_work(p)):
+        loads[loads.index(min(loads))] += _work(p)
+    return max(loads, default=0.0)
 
 
 def _blocks(items: list, n: int) -> list[list]:
@@ -225,14 +235,16 @@ def plan_study(
         return out
 
     pieces = pieces_of(counts)
-    while devices > 1:  # split the longest piece's group while that piece outlasts an even share
-        work = [p.seconds if p.seconds is not None else p.agents for p in pieces]
-        longest = pieces[max(range(len(pieces)), key=work.__getitem__)]
+    while devices > 1:  # split the longest piece's group while that shortens the study
+        longest = max(pieces, key=_work)
         total = max(1, len(study.groups[longest.group].points)) * len(study.seeds)
-        if max(work) <= sum(work) / devices or total / (counts[longest.group] + 1) < MIN_AGENTS:
+        if total / (counts[longest.group] + 1) < MIN_AGENTS:
             break
-        counts[longest.group] += 1
-        pieces = pieces_of(counts)
+        trial = counts[: longest.group] + [counts[longest.group] + 1] + counts[longest.group + 1 :]
+        split = pieces_of(trial)
+        if _makespan(split, devices) >= _makespan(pieces, devices):
+            break
+        counts, pieces = trial, split
     explained = _explain(study, device, devices, configs, caps, table)
     return Plan(study.digest, device, devices, tuple(caps), tuple(pieces), explained)
 

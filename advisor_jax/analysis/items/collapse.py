@@ -146,36 +146,8 @@ def collapse(points: list[Point], context) -> Item | None:
     rows = [(p, a) for p, a in rows if a]
     if not rows:
         return None
-    summary, flagged = [], []
-    for p, agents in rows:
-
-        def count(key, agents=agents):
-            return sum(a[key] is not None for a in agents)
-
-        summary.append(
-            {
-                "point": p.text(),
-                "episodes": p.budget,
-                "seeds": len(agents),
-                **{a: cell(scores(p, a)) for a in ARENAS},
-                "worst_seed": min(
-                    (a["eval_training"] for a in agents if a["eval_training"] is not None),
-                    default=None,
-                ),
-                "collapsed": sum(a["collapsed"] for a in agents),
-                "saturated": count("saturation_at"),
-                "critic_blowup": count("critic_blowup_at"),
-                "q_over_bound": count("q_over_bound_at"),
-            }
-        )
-        flagged += [
-            (p, a)
-            for a in agents
-            if a["collapsed"]
-            or (a["saturation_at"] is not None and a["eq2"])
-            or a["critic_blowup_at"] is not None
-            or a["q_over_bound_at"] is not None
-        ]
+    summary = [_point_summary(p, agents) for p, agents in rows]
+    flagged = [(p, a) for p, agents in rows for a in agents if _flagged(a)]
     public = lambda a: {k: v for k, v in a.items() if not k.startswith("_")}  # noqa: E731
     record = {
         "thresholds": {
@@ -223,42 +195,7 @@ def collapse(points: list[Point], context) -> Item | None:
         ),
         "",
     ]
-    if flagged:
-        show = lambda v: "–" if v is None else v  # noqa: E731
-        lines += [
-            "Every such agent (episode at which each began; success per 50 training episodes):",
-            "",
-            *markdown_table(
-                [
-                    "point",
-                    "seed",
-                    "success per 50 episodes",
-                    "eval %",
-                    "saturated from",
-                    "critic blow-up from",
-                    "max Eq. 2 step",
-                    "Q > bound from",
-                    "max batch Q",
-                    "collapse from",
-                ],
-                [
-                    (
-                        p.text(),
-                        a["seed"],
-                        " ".join(f"{100 * b:.0f}" for b in a["blocks"]),
-                        "–" if a["eval_training"] is None else f"{100 * a['eval_training']:.1f}",
-                        show(a["saturation_at"]),
-                        show(a["critic_blowup_at"]),
-                        "–" if a["max_step"] is None else f"{a['max_step']:.2f}",
-                        show(a["q_over_bound_at"]),
-                        "–" if a["max_q"] is None else f"{a['max_q']:.1f}",
-                        show(a["collapse_at"]),
-                    )
-                    for p, a in flagged
-                ],
-            ),
-            "",
-        ]
+    lines += _flagged_lines(flagged)
     return Item(
         "collapse",
         "Collapsed seeds and the learner diagnostics",
@@ -267,6 +204,80 @@ def collapse(points: list[Point], context) -> Item | None:
         lines,
         [p for p, _ in rows],
     )
+
+
+def _point_summary(p: Point, agents: list[dict]) -> dict:
+    """A point's row: success, worst seed, and how many seeds each measure flagged."""
+
+    def count(key):
+        return sum(a[key] is not None for a in agents)
+
+    finite = [a["eval_training"] for a in agents if a["eval_training"] is not None]
+    return {
+        "point": p.text(),
+        "episodes": p.budget,
+        "seeds": len(agents),
+        **{a: cell(scores(p, a)) for a in ARENAS},
+        "worst_seed": min(finite, default=None),
+        "collapsed": sum(a["collapsed"] for a in agents),
+        "saturated": count("saturation_at"),
+        "critic_blowup": count("critic_blowup_at"),
+        "q_over_bound": count("q_over_bound_at"),
+    }
+
+
+def _flagged(a: dict) -> bool:
+    """Collapsed, saturated (Eq. 2 agents), blown up or overestimating."""
+    return (
+        a["collapsed"]
+        or (a["saturation_at"] is not None and a["eq2"])
+        or a["critic_blowup_at"] is not None
+        or a["q_over_bound_at"] is not None
+    )
+
+
+def _flagged_lines(flagged: list) -> list[str]:
+    """Every flagged agent with the episode at which each measure began."""
+    if not flagged:
+        return []
+
+    def show(v):
+        return "–" if v is None else v
+
+    return [
+        "Every such agent (episode at which each began; success per 50 training episodes):",
+        "",
+        *markdown_table(
+            [
+                "point",
+                "seed",
+                "success per 50 episodes",
+                "eval %",
+                "saturated from",
+                "critic blow-up from",
+                "max Eq. 2 step",
+                "Q > bound from",
+                "max batch Q",
+                "collapse from",
+            ],
+            [
+                (
+                    p.text(),
+                    a["seed"],
+                    " ".join(f"{100 * b:.0f}" for b in a["blocks"]),
+                    "–" if a["eval_training"] is None else f"{100 * a['eval_training']:.1f}",
+                    show(a["saturation_at"]),
+                    show(a["critic_blowup_at"]),
+                    "–" if a["max_step"] is None else f"{a['max_step']:.2f}",
+                    show(a["q_over_bound_at"]),
+                    "–" if a["max_q"] is None else f"{a['max_q']:.1f}",
+                    show(a["collapse_at"]),
+                )
+                for p, a in flagged
+            ],
+        ),
+        "",
+    ]
 
 
 def _plot(rows):

@@ -156,57 +156,8 @@ def table1(points: list[Point], context) -> Item | None:
         ),
         "",
     ]
-    if found:
-        lines += [
-            "The paper's claims, seed by seed: better − worse in success points, mean ± 95 % "
-            "interval (`holds` above 0, `reversed` below), and P(better > worse) over all "
-            "pairs of seeds:",
-            "",
-            *markdown_table(
-                [
-                    "claim",
-                    "better > worse",
-                    "seeds",
-                    "training env",
-                    "P(>) training",
-                    "validation env",
-                    "P(>) validation",
-                ],
-                [
-                    (
-                        c["kind"],
-                        f"{c['better']} > {c['worse']}"
-                        + (f" (differs: {', '.join(c['differs'])})" if c["differs"] else ""),
-                        (c["training"] or {}).get("seeds", "–"),
-                        *(
-                            x
-                            for a in ARENAS
-                            for x in (
-                                (c[a] or {}).get("text", "–"),
-                                f"{c[a]['probability_of_improvement']:.2f}" if c[a] else "–",
-                            )
-                        ),
-                    )
-                    for c in found
-                ],
-                align="llrrrrr",
-            ),
-            "",
-        ]
-    learned = [(r, b) for r in rows if (b := learning_blocks(r))]
-    if learned:
-        n = max(len(b) for _, b in learned)
-        last = max(r.budget for r, _ in learned)
-        lines += [
-            f"Training success per {BLOCK} episodes (% of all seeds' episodes that reached "
-            "the goal; exploration and, with AfD, the advisor acting):",
-            "",
-            *markdown_table(
-                ["agent", *(f"{BLOCK * k + 1}–{min(BLOCK * (k + 1), last)}" for k in range(n))],
-                [(r.text(), *(f"{v:.0f}" for v in b)) for r, b in learned],
-            ),
-            "",
-        ]
+    lines += _claim_lines(found)
+    lines += _learning_lines(rows)
     return Item(
         "table1",
         "Table 1: success of each agent type (simulation)",
@@ -215,6 +166,67 @@ def table1(points: list[Point], context) -> Item | None:
         lines,
         rows,
     )
+
+
+def _claim_lines(found: list[dict]) -> list[str]:
+    """The paper's claims as a markdown table (none: no lines)."""
+    if not found:
+        return []
+    return [
+        "The paper's claims, seed by seed: better − worse in success points, mean ± 95 % "
+        "interval (`holds` above 0, `reversed` below), and P(better > worse) over all "
+        "pairs of seeds:",
+        "",
+        *markdown_table(
+            [
+                "claim",
+                "better > worse",
+                "seeds",
+                "training env",
+                "P(>) training",
+                "validation env",
+                "P(>) validation",
+            ],
+            [
+                (
+                    c["kind"],
+                    f"{c['better']} > {c['worse']}"
+                    + (f" (differs: {', '.join(c['differs'])})" if c["differs"] else ""),
+                    (c["training"] or {}).get("seeds", "–"),
+                    *(
+                        x
+                        for a in ARENAS
+                        for x in (
+                            (c[a] or {}).get("text", "–"),
+                            f"{c[a]['probability_of_improvement']:.2f}" if c[a] else "–",
+                        )
+                    ),
+                )
+                for c in found
+            ],
+            align="llrrrrr",
+        ),
+        "",
+    ]
+
+
+def _learning_lines(rows: list[Point]) -> list[str]:
+    """Training success per block of episodes, a row per point with metrics."""
+    learned = [(r, b) for r in rows if (b := learning_blocks(r))]
+    if not learned:
+        return []
+    n = max(len(b) for _, b in learned)
+    last = max(r.budget for r, _ in learned)
+    return [
+        f"Training success per {BLOCK} episodes (% of all seeds' episodes that reached "
+        "the goal; exploration and, with AfD, the advisor acting):",
+        "",
+        *markdown_table(
+            ["agent", *(f"{BLOCK * k + 1}–{min(BLOCK * (k + 1), last)}" for k in range(n))],
+            [(r.text(), *(f"{v:.0f}" for v in b)) for r, b in learned],
+        ),
+        "",
+    ]
 
 
 def _plot(rows: list[Point]):

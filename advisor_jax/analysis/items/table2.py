@@ -197,6 +197,22 @@ def table2(points: list[Point], context) -> Item | None:
         ),
         "",
     ]
+    lines += _comparison_lines(record, table3, budgets[-1])
+    record["notes"] = notes
+    record["advisor"] = advisor
+    return Item(
+        "table2",
+        "Tables 2 and 3: the physical arena",
+        record,
+        _plot(rows, budgets),
+        lines,
+        [p for r in rows for p in r["budgets"].values()],
+    )
+
+
+def _comparison_lines(record: dict, table3: list, final: int) -> list[str]:
+    """ATD3+AfDP against each type, Table 3 and its AfP claim, as markdown."""
+    lines = []
     if record["versus_best"]:
         lines += [
             f"{BEST} − other type, success points, seed by seed:",
@@ -217,7 +233,7 @@ def table2(points: list[Point], context) -> Item | None:
             "",
         ]
     lines += [
-        f"Table 3: collision speed after {budgets[-1]} episodes, mean ± sd over every "
+        f"Table 3: collision speed after {final} episodes, mean ± sd over every "
         "collision episode of the type's seeds:",
         "",
         *markdown_table(["agent", "collision speed (m/s)", "collisions", "paper (m/s)"], table3),
@@ -237,16 +253,7 @@ def table2(points: list[Point], context) -> Item | None:
             ),
             "",
         ]
-    record["notes"] = notes
-    record["advisor"] = advisor
-    return Item(
-        "table2",
-        "Tables 2 and 3: the physical arena",
-        record,
-        _plot(rows, budgets),
-        lines,
-        [p for r in rows for p in r["budgets"].values()],
-    )
+    return lines
 
 
 def _afp_collisions(rows: list[dict], budget: int) -> list[dict]:
