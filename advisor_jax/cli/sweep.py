@@ -133,7 +133,7 @@ def sweep_command(args: SweepArgs) -> None:
         console.print(f"wrote {args.slurm}: submit it with  sbatch {args.slurm}")
         return
     print_plan(console, study, plan, args.out, kept)
-    devices = planning.local_devices()
+    devices = planning.local_devices()[: args.devices or None]
     result = sweep.run_local(study, args.out, plan, devices, not args.no_progress, console)
     failed = [i for i, status in result.items() if status == sweep.FAILED]
     if failed:
