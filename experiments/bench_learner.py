@@ -34,14 +34,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.agent import networks
-from advisor_jax.agent.compiler_options import compiler_options
 from advisor_jax.agent.config import HParams, parse_agent
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.program import compiler_options, twin_inputs_per_critic
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
@@ -103,26 +102,30 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
     scheduling, as training's general program runs it.
 
     ``steady``: the loop as the latency-bound program (populations of at most
-    ``host_loop.LATENCY_BOUND_AGENTS``) runs its updates instead: blocks of d updates
+    ``program.LATENCY_BOUND_AGENTS``) runs its updates instead: blocks of d updates
     written out in a row whose first takes the actor step, no conditional, overlapping
     kernels and a whole-loop graph. Timed alone that way the update ran slower, not faster
     (1 agent, bf16, H100: 1,356-2,339 agent-updates/s against 3,121;
     ``results/bench_train_steady/``): the program pays in the full step, where the
     collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
-    learner = make_learner(cfg)
+    learner = make_learner(cfg, inputs_per_critic=twin_inputs_per_critic())  # as training's
     hp = HParams()
     steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
 
     def one_agent(learner_state, replay, key):
-        def update(carry, u, actor=None):
+        def update(carry, u, update_fn=None):
             state, key = carry
             key, k_sample, k_critic = jax.random.split(key, 3)
-            state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u, 0, actor)
+            if update_fn is None:  # the delay decided from the index by a cond
+                state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u)
+            else:
+                state, _, _ = update_fn(state, replay, k_sample, k_critic, hp)
             return (state, key), None
 
         def block(carry, u):  # d updates from u, a multiple of d, written out as training's
             for j in range(delay):
-                carry, _ = update(carry, u + j, actor=j == 0)
+                with_actor = learner.update_with_actor if j == 0 else learner.update_critic_only
+                carry, _ = update(carry, u + j, with_actor)
             return carry, None
 
         body, starts = (
@@ -153,7 +156,8 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
 
     from advisor_jax.agent.networks import apply_critics, make_critic
 
-    learner = make_learner(cfg)
+    per_critic = twin_inputs_per_critic()
+    learner = make_learner(cfg, inputs_per_critic=per_critic)
     hp = HParams()
     critic = make_critic(cfg, cfg.precision)
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
@@ -166,7 +170,7 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     )
 
     def critic_loss(params, batch):
-        q = apply_critics(critic, params, batch.obs, batch.action)
+        q = apply_critics(critic, params, batch.obs, batch.action, per_critic)
         return jnp.mean(jnp.square(q - batch.reward))
 
     pieces = {
@@ -227,17 +231,7 @@ def main() -> None:
                         help="time the update loop as the latency-bound training program "
                              "compiles it (make_update_loop's steady); not passed to "
                              "--reference")  # fmt: skip
-    parser.add_argument("--bias-in-gemm", action="store_true",
-                        help="hidden layers add their bias inside the matmul "
-                             "(networks.BIAS_IN_GEMM); not passed to --reference")  # fmt: skip
-    parser.add_argument("--width-align", type=int, default=1, metavar="N",
-                        help="hidden widths computed padded to a multiple of N "
-                             "(networks.WIDTH_ALIGN); not passed to --reference")  # fmt: skip
     args = parser.parse_args()
-    networks.BIAS_IN_GEMM = networks.BIAS_IN_GEMM or args.bias_in_gemm
-    if args.width_align < 1:
-        parser.error(f"--width-align must be ≥ 1, got {args.width_align}")
-    networks.WIDTH_ALIGN = args.width_align
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
@@ -291,7 +285,6 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        bias_in_gemm=networks.BIAS_IN_GEMM, width_align=networks.WIDTH_ALIGN,
         latency_bound=args.latency_bound, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
@@ -310,14 +303,7 @@ def main() -> None:
         "",
         f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
-        "updates per jitted call (replay sampling + critic step + delayed actor step)"
-        + (
-            "; hidden layers with the bias in the matmul (networks.BIAS_IN_GEMM)."
-            if networks.BIAS_IN_GEMM
-            else f"; hidden widths padded to multiples of {networks.WIDTH_ALIGN} (WIDTH_ALIGN)."
-            if networks.WIDTH_ALIGN > 1
-            else "."
-        ),
+        "updates per jitted call (replay sampling + critic step + delayed actor step).",
         "",
         f"Device: {device}, {result['date']}. Ceilings measured in the same process: "
         + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
@@ -335,10 +321,7 @@ def main() -> None:
         }
         lines += [
             "",
-            f"Against `{args.reference}` (run in the same command, same options"
-            + (", without --bias-in-gemm" if args.bias_in_gemm else "")
-            + (", without --width-align" if args.width_align > 1 else "")
-            + "):",
+            f"Against `{args.reference}` (run in the same command, same options):",
             "",
             *common.markdown_table(
                 ("precision", "agents", "reference agent-updates/s", "this tree", "speed-up"),

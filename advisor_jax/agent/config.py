@@ -228,6 +228,15 @@ class HParams:
 
 HPARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(HParams))
 
+FREEZES: tuple[str, ...] = ("lr_actor", "lr_critic", "tau", "bc_lr", "model_lr")
+"""Multiplied by 0 once an agent has finished: it then learns nothing."""
+
+
+def freeze(hp: HParams, active) -> HParams:
+    """``hp`` of an agent that learns only while ``active``."""
+    return hp.replace(**{name: getattr(hp, name) * active for name in FREEZES})
+
+
 # Allowed ranges: (low, high, low inclusive, high inclusive).
 _HPARAM_RANGES = {
     "gamma": (0.0, 1.0, True, False),

@@ -11,7 +11,7 @@ the JAX op and source line XLA recorded for it.
 
     python experiments/hlo_collectives.py --preset quick --agents 4 --devices 2
 
-``sharded_chunk_hlo`` compiles the population's sharded chunk (``host_loop.
+``sharded_chunk_hlo`` compiles the population's sharded chunk (``program.
 population_functions``) from abstract shapes, without running it. Call it in a process
 that sees at least ``devices`` devices (on CPU: ``XLA_FLAGS=--xla_force_host_platform_
 device_count=N`` set before JAX starts).
@@ -202,7 +202,7 @@ def sharded_chunk_hlo(cfg, n_agents: int, devices: int) -> str:
 
     from advisor_jax.agent.config import HParams
     from advisor_jax.training.devices import pad, place
-    from advisor_jax.training.host_loop import population_functions
+    from advisor_jax.training.program import population_functions
     from advisor_jax.training.population import agent_keys, build_population
 
     placement = place(n_agents, devices)

@@ -1,4 +1,5 @@
-"""The twin critics' inputs per critic or shared (networks.apply_critics, ``inputs_per_critic``).
+"""The twin critics' inputs per critic or shared (networks.apply_critics, ``inputs_per_critic``,
+chosen by ``training.program.twin_inputs_per_critic``).
 
 Both layouts compute the same function: Q-values, parameter gradients and ∇_a Q of a
 population of twin critics agree to fp32 rounding (close in bf16). The per-critic layout
@@ -19,6 +20,7 @@ import pytest
 
 from advisor_jax.agent import networks
 from advisor_jax.contract import spec
+from advisor_jax.training.program import twin_inputs_per_critic
 from tests.learn.conftest import SMALL
 
 CFG = SimpleNamespace(
@@ -74,7 +76,7 @@ def test_per_critic_inputs_compute_the_same_q_and_gradients(precision, bound):
 
 def test_the_cpu_default_is_the_shared_layout_bit_for_bit():
     critic, params, obs, action = _population("fp32")
-    default = _q_and_grads(critic, params, obs, action, inputs_per_critic=None)
+    default = _q_and_grads(critic, params, obs, action, twin_inputs_per_critic("cpu"))
     shared = _q_and_grads(critic, params, obs, action, inputs_per_critic=False)
     for x, y in zip(jax.tree.leaves(default), jax.tree.leaves(shared), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
@@ -102,4 +104,4 @@ def test_per_critic_inputs_leave_no_merged_twin_gemm():
 
 @pytest.mark.parametrize(("backend", "expected"), [("gpu", True), ("tpu", False), ("cpu", False)])
 def test_the_default_layout_is_per_critic_only_on_a_gpu(backend, expected):
-    assert networks.inputs_per_critic_by_default(backend) is expected
+    assert twin_inputs_per_critic(backend) is expected

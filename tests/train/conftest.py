@@ -82,12 +82,11 @@ def run_chunks_with_metrics(chunk_fn, state, hp, chunk_steps, first, last, gate_
     return jax.device_get(state), merged
 
 
-def gate_function(trainer, cfg):
+def gate_function(cfg):
     """jit((state, hp) -> the population's gate), as ``population_functions`` computes it."""
-    from advisor_jax.training import phases
+    from advisor_jax.training.prior.trainer import make_prior_program
 
-    return jax.jit(lambda state, hp: phases.population_gate(
-        trainer.schedule, state, hp, cfg.episodes, cfg.chunk_steps))  # fmt: skip
+    return jax.jit(make_prior_program(cfg).population_gate)
 
 
 def assert_gate_covers_play(metrics, chunk_steps) -> None:

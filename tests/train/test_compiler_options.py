@@ -1,4 +1,4 @@
-"""The XLA compile options of programs that hold a learner (agent/compiler_options.py).
+"""The XLA compile options of programs that hold a learner (training/program.py).
 
 On GPUs a latency-bound program (a small population) overlaps independent kernels, and one
 without conditionals in its loops (``steady``) also runs them as whole CUDA graphs; a bf16
@@ -15,15 +15,15 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from advisor_jax.agent.compiler_options import (
+from advisor_jax.agent.config import HParams
+from advisor_jax.training import program
+from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import (
     CUBLAS_GEMMS,
     OVERLAPPING_KERNELS,
     WHOLE_LOOPS,
     compiler_options,
 )
-from advisor_jax.agent.config import HParams
-from advisor_jax.training import host_loop
-from advisor_jax.training.population import agent_keys, build_population
 from tests.train.conftest import TINY
 
 
@@ -69,9 +69,9 @@ def test_the_training_chunk_compiles_with_its_learners_options(monkeypatch):
         asked.append((precision, overlap, steady))  # name: proof the chunk got it
         return {"xla_no_such_option_for_this_test": True}
 
-    monkeypatch.setattr(host_loop, "compiler_options", options)
+    monkeypatch.setattr(program, "compiler_options", options)
     cfg = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
-    _, init_fn, chunk_fn = host_loop.population_functions(cfg, steady=True)
+    _, init_fn, chunk_fn = program.population_functions(cfg, steady=True)
     assert asked == [("bf16", True, True)]
     hp, _ = build_population(HParams(), {}, seeds=[0])
     state = init_fn(agent_keys([0]))  # init keeps XLA's defaults

@@ -79,7 +79,7 @@ def lfd_population(lfd_functions):
     assert trainer.max_steps == N_CHUNKS * TINY_LFD.chunk_steps
     hp, agents = build_population(BASE_HP, GRID, SEEDS)
     keys = agent_keys([a["seed"] for a in agents])
-    state, metrics = _run(init_fn, chunk_fn, keys, hp, gate_fn=gate_function(trainer, TINY_LFD))
+    state, metrics = _run(init_fn, chunk_fn, keys, hp, gate_fn=gate_function(TINY_LFD))
     return state, metrics, hp, agents
 
 
@@ -115,7 +115,7 @@ def test_gated_run_equals_every_gate_on(lfd_population, lfd_functions):
     trainer, init_fn, _ = lfd_functions
     assert not metrics["gate"].all(), "the gated run skipped something"
     chunk = jax.jit(jax.vmap(trainer.chunk, in_axes=(0, 0, None, None)))
-    gate_fn = gate_function(trainer, TINY_LFD)
+    gate_fn = gate_function(TINY_LFD)
     keys = agent_keys([a["seed"] for a in agents])
     runs = []
     for forced in (False, True):
@@ -137,7 +137,7 @@ def test_phases_follow_the_schedule(lfd_population, lfd_functions):
     """demo until N = D, then exactly bc_steps imitation and critic_warmup warm-up steps
     (environment held), then RL; each phase computes only its own metrics."""
     state, metrics, hp, _ = lfd_population
-    names = lfd_functions[0].schedule.names
+    names = lfd_functions[0].phases.names
     assert names == ("demo", "imitate", "warmup", "rl")
     phase, episodes = metrics["train/phase"], metrics["train/episodes"]
     for a in range(phase.shape[0]):

@@ -25,9 +25,11 @@ from advisor_jax.agent.config import (
     preset,
     train_config_from_dict,
 )
-from advisor_jax.training import checkpoint, phases
+from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.prior import phases
+from advisor_jax.training.prior.trainer import make_prior_program
 from advisor_jax.training.run_directory import load_actor
 from tests.compare import assert_same_agent
 from tests.train.conftest import (
@@ -93,7 +95,7 @@ def mcp_population(mcp_functions):
     hp, agents = build_population(BASE_HP, GRID, SEEDS)
     keys = agent_keys([a["seed"] for a in agents])
     start = jax.device_get(init_fn(keys))  # the chunk donates its input
-    state, metrics = _run(chunk_fn, init_fn(keys), hp, gate_fn=gate_function(trainer, TINY_MCP))
+    state, metrics = _run(chunk_fn, init_fn(keys), hp, gate_fn=gate_function(TINY_MCP))
     return state, metrics, hp, agents, start
 
 
@@ -109,7 +111,7 @@ def test_phases_follow_the_schedule(mcp_population, mcp_functions):
     """Phases in order; each offline phase takes exactly its steps with the env held;
     each collect phase ends at its episode count; each computes only its own metrics."""
     state, metrics, hp, _, _ = mcp_population
-    assert mcp_functions[0].schedule.names == NAMES
+    assert mcp_functions[0].phases.names == NAMES
     phase, episodes = metrics["train/phase"], metrics["train/episodes"]
     for a in range(phase.shape[0]):
         p = phase[a]
@@ -255,7 +257,7 @@ def test_the_gate_covers_every_phase_played(mcp_population, mcp_functions):
     DAgger, warm-up and RL are off."""
     _, metrics, _, _, _ = mcp_population
     assert_gate_covers_play(metrics, TINY_MCP.chunk_steps)
-    schedule = mcp_functions[0].schedule
+    schedule = make_prior_program(TINY_MCP).schedule
     before = phases.offline_before(schedule)
     np.testing.assert_array_equal(before[:6], [0, 0, 1, 31, 31, 61])
     np.testing.assert_array_equal(metrics["gate"][0], before < TINY_MCP.chunk_steps)

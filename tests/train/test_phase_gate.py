@@ -1,4 +1,4 @@
-"""The population's gate (training/phases.py, ``chunk_gate``): hand-made cases, no compile.
+"""The population's gate (training/prior/phases.py, ``chunk_gate``): hand-made cases, no compile.
 
 Gate i is on iff some agent may be in phase i at some step of the next chunk: a live agent
 in phase <= i whose offline steps still to take before phase i are fewer than the chunk's
@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax.agent.config import HParams
-from advisor_jax.training import phases
+from advisor_jax.training.prior import phases
 
 CHUNK = 1000
 

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from advisor_jax.agent.config import parse_agent
-from advisor_jax.training import host_loop
+from advisor_jax.training import program
 from advisor_jax.training.devices import Placement, place
-from advisor_jax.training.host_loop import LATENCY_BOUND_AGENTS, latency_bound, population_functions
 from advisor_jax.training.population import agent_keys
-from advisor_jax.training.train import make_train, steady_at
+from advisor_jax.training.program import LATENCY_BOUND_AGENTS, latency_bound, population_functions
+from advisor_jax.training.train import steady_at
 from tests.train.conftest import GOOD, TINY, _population, primitive_names
 
 ROUNDING = 1e-4
@@ -117,8 +117,8 @@ def test_the_steady_program_holds_no_conditional(steady_functions):
 )  # fmt: skip
 def test_the_steady_program_is_built_only_where_it_exists(overrides, built):
     cfg = dataclasses.replace(TINY, **overrides)
-    assert make_train(cfg, steady=True).steady == built
-    assert not make_train(cfg, steady=False).steady
+    assert population_functions(cfg, steady=True)[0].steady == built
+    assert not population_functions(cfg, steady=False)[0].steady
 
 
 @pytest.mark.parametrize("first_step", [40, 41, 0])  # steady; general past warm-up; warm-up
@@ -155,7 +155,7 @@ def test_a_chunk_computes_the_general_programs_steps(
 
 def test_population_functions_pick_the_program_from_the_placement(monkeypatch):
     asked = []
-    monkeypatch.setattr(host_loop, "latency_bound", lambda p: asked.append(p) or True)
-    trainer, _, _ = host_loop.population_functions(TINY, place(3, 1))
+    monkeypatch.setattr(program, "latency_bound", lambda p: asked.append(p) or True)
+    trainer, _, _ = program.population_functions(TINY, place(3, 1))
     assert asked == [place(3, 1)] and trainer.steady  # as on a GPU
-    assert not host_loop.population_functions(TINY, place(3, 1), steady=False)[0].steady
+    assert not program.population_functions(TINY, place(3, 1), steady=False)[0].steady

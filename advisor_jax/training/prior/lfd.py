@@ -31,10 +31,10 @@ from advisor_jax.agent.config import TrainConfig
 from advisor_jax.agent.imitation import imitation_init, imitation_step
 from advisor_jax.agent.replay_buffer import replay_sample
 from advisor_jax.agent.update_rules import soft_update
-from advisor_jax.training.phases import Control, Phase, Schedule
+from advisor_jax.training.prior.phases import Control, Phase, Schedule
 
 
-def lfd_schedule(cfg: TrainConfig, learner, actor) -> Schedule:
+def lfd_schedule(cfg: TrainConfig, learner, actor, env=None) -> Schedule:
     """demo (advisor, D episodes) → imitate (bc_steps) → warmup (critic_warmup) → RL."""
     settings = cfg.agent.baseline
 

@@ -49,8 +49,8 @@ from advisor_jax.agent.dynamics_model import (
 from advisor_jax.agent.imitation import imitation_init, imitation_step
 from advisor_jax.agent.mpc import make_mpc_policy
 from advisor_jax.contract import spec
-from advisor_jax.training.lfd import warm_critic
-from advisor_jax.training.phases import Control, Phase, Schedule
+from advisor_jax.training.prior.lfd import warm_critic
+from advisor_jax.training.prior.phases import Control, Phase, Schedule
 
 
 @struct.dataclass

@@ -3,9 +3,10 @@
 A baseline agent (docs/baselines.md) plays some phases before ordinary RL: episodes driven
 by another controller (LfD: the advisor's demonstrations) and offline updates that touch no
 environment (LfD: imitation, critic warm-up). Its ``Schedule`` is a static tuple of
-``Phase``s followed by the implicit RL phase. Every phase runs in ``make_train``'s
-``chunk`` scan, so there is one compiled program and checkpoint / resume work unchanged; the
-agent's phase at each scan step is a pure function of its own counters::
+``Phase``s followed by the implicit RL phase. Every phase runs in the baseline's own chunk
+scan (``trainer.make_prior_program``, built from the RL core's pieces), RL included, so
+there is one compiled program and checkpoint / resume work unchanged; the agent's phase at
+each scan step is a pure function of its own counters::
 
     phase = first i whose target is not reached, else RL (= len(phases))
         collect phase i:  done once N  >= Σ_{collect j ≤ i} hp.<phase j's episodes field>
@@ -15,7 +16,7 @@ agent's phase at each scan step is a pure function of its own counters::
     collect phase:  its controller acts (OU noise added if it says so), env step, replay,
                     episode counted against N_total; no learning
     offline phase:  the env is held (nothing stored, no step counted), one ``update``, k += 1
-    RL:             today's collect (the actor) + learn, unchanged
+    RL:             the core's collect (the actor) and its ``learn``
 
 Counts of episodes are ``HParams`` (sweepable in one compile: they are only compared with
 N); offline step counts are static. Under ``vmap`` the phase is batched, so ``lax.switch``
@@ -58,7 +59,7 @@ updates inside one RL step, while every phase advances by scan steps.
 
 To add a baseline: write its ``Phase``s (a controller for each collect phase, an update for
 each offline phase), the extra per-agent state its phases need (``Schedule.init``), and
-register its factory in ``make_schedule``.
+register its factory in ``trainer.SCHEDULES``.
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from advisor_jax.agent.config import HParams, TrainConfig
+from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import nan_like
 
 Metrics = dict[str, jax.Array]
@@ -143,26 +144,10 @@ class Schedule(NamedTuple):
 
 @struct.dataclass
 class PhaseState:
-    """Per-agent state of a baseline's phases (``TrainState.prior``)."""
+    """Per-agent state of a baseline's phases (``PriorState.prior``)."""
 
     offline_steps: jax.Array  # () int32, k: offline steps done
     data: Any  # the baseline's own (LfD: the imitation's Adam state; MCP+MF: McpData)
-
-
-def make_schedule(cfg: TrainConfig, learner, actor, env=None) -> Schedule | None:
-    """The schedule of ``cfg``'s baseline, None for the paper's agents."""
-    baseline = cfg.agent.baseline
-    if baseline is None:
-        return None
-    if baseline.kind == "lfd":
-        from advisor_jax.training.lfd import lfd_schedule
-
-        return lfd_schedule(cfg, learner, actor)
-    if baseline.kind == "mcp":
-        from advisor_jax.training.mcp import mcp_schedule
-
-        return mcp_schedule(cfg, learner, actor, env)
-    raise ValueError(f"no phases for baseline kind {baseline.kind!r}")
 
 
 def init_state(schedule: Schedule, learner_state, key: jax.Array) -> PhaseState:
