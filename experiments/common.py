@@ -354,11 +354,12 @@ def setting_text(value) -> str:
 def preset_setting(preset_name: str, agent: str, name: str):
     """A preset's value of a hyperparameter or of a static setting (``STATIC_SETTINGS``)."""
     from advisor_jax.agent.config import preset
+    from advisor_jax.agent.settings import flat_items
 
     static, hp = preset(preset_name, agent)
     if name in AGENT_FIELDS:
         return getattr(static.agent, name)
-    return getattr(static, name) if name in STATIC_SETTINGS else getattr(hp, name)
+    return getattr(static, name) if name in STATIC_SETTINGS else flat_items(hp)[name]
 
 
 def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
@@ -366,17 +367,18 @@ def preset_differences(summary: dict, agent_row: dict) -> dict[str, Any]:
     hyperparameters and static settings (``STATIC_SETTINGS``: ``policy_delay``,
     ``precision``, ...) in which it differs from that preset's defaults. A run.json
     without a ``preset`` was trained from ``paper``; one without a hyperparameter was
-    trained before it existed, so with what its ``HParams`` default (the paper's value, a
+    trained before it existed, so with what its declared default (the paper's value, a
     switch off) means, whatever the preset says today."""
-    from advisor_jax.agent.config import HPARAM_NAMES, HParams, preset
+    from advisor_jax.agent.config import default_hparams, preset
+    from advisor_jax.agent.settings import flat_items
 
     name = summary.get("preset", "paper")
     static, defaults = preset(name, summary["agent"])
-    before = HParams()
+    before, defaults = flat_items(default_hparams(static.agent)), flat_items(defaults)
     settings: dict[str, Any] = {"preset": name, "episodes": summary["config"]["episodes"]}
-    for field in HPARAM_NAMES:
-        value = agent_row.get(field, getattr(before, field))
-        if not math.isclose(value, getattr(defaults, field), rel_tol=1e-6):
+    for field, default in defaults.items():
+        value = agent_row.get(field, before[field])
+        if not math.isclose(value, default, rel_tol=1e-6):
             settings[field] = value
     # static settings (one compile each: --policy-delay, --batch-size, --precision, ...)
     # recorded in run.json's config; a field an older run.json lacks is left unnamed

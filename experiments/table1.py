@@ -30,7 +30,8 @@ from pathlib import Path
 import common
 import numpy as np
 
-from advisor_jax.agent.config import PAPER_AGENTS, PRESETS, SWITCHES, preset
+from advisor_jax.agent.config import PAPER_AGENTS, SWITCHES, HParams, preset
+from advisor_jax.agent.settings import preset_values
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.plots import save_png
 from advisor_jax.training.reporting import mean_ci95, moving_average
@@ -166,8 +167,9 @@ def _settings_text(settings: dict) -> str:
         for k, v in settings.items()
         if k not in ("preset", "episodes")
     )
-    own = ", ".join(f"{k}={v:g}" for k, v in PRESETS[settings["preset"]][2].items())
-    literal = not set(SWITCHES) & (set(PRESETS[settings["preset"]][2]) | set(settings))
+    changed = preset_values(HParams, settings["preset"], changed_only=True)
+    own = ", ".join(f"{k}={v:g}" for k, v in changed.items())
+    literal = not set(SWITCHES) & (set(changed) | set(settings))
     return (
         f"preset `{settings['preset']}`"
         + (f" ({own})" if own else "")

@@ -51,7 +51,16 @@ import numpy as np
 import table1
 
 from advisor_jax.agent.baselines import prior_episodes
-from advisor_jax.agent.config import PRESETS, HParams, preset, train_config_from_dict
+from advisor_jax.agent.config import (
+    PRESETS,
+    AgentConfig,
+    HParams,
+    TrainConfig,
+    hparams_from_row,
+    preset,
+    train_config_from_dict,
+)
+from advisor_jax.agent.settings import preset_values
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.plots import save_png
 from advisor_jax.training.reporting import mean_ci95
@@ -76,7 +85,8 @@ PAPER_TABLE3 = {  # collision speed m/s, mean ± sd, agents trained for 200 epis
     "MCP+MF": (0.35, 0.25),
 }
 BEST = "ATD3+AfDP"  # the paper's best agent type in Tables 2 and 3
-STABLE_SWITCHES = PRESETS["stable"][2]  # beta=1, beta_normalize=1, clip_actor_target=1, ...
+# beta=1, beta_normalize=1, clip_actor_target=1, clip_q_target=1
+STABLE_SWITCHES = preset_values(HParams, "stable", changed_only=True)
 NO_RL = "†"  # a budget the baseline's prior-knowledge phases fill: no RL episode yet
 SEPARATE = "‡"  # a budget given by a separate, shorter run of the type (load_rows)
 NO_RL_ACTOR = {  # what a baseline's actor is when its budget ends with its prior phases
@@ -208,8 +218,7 @@ def learner_settings(summary: dict) -> dict:
     out = {"algo": agent.algo, "delay": agent.delay, "afp": agent.advisor_policy,
            "baseline": None, "prior_episodes": None}  # fmt: skip
     if agent.baseline is not None:
-        names = {f for f in HParams.__dataclass_fields__}
-        hp = HParams(**{k: v for k, v in summary["agents"][0].items() if k in names})
+        hp = hparams_from_row(agent, summary["agents"][0])
         out["baseline"] = agent.baseline.kind
         out["prior_episodes"] = float(prior_episodes(agent.baseline, hp)[0])
     return out
@@ -227,7 +236,9 @@ def preset_text(name: str) -> str:
         return ""
     static, hp = preset(name)
     base_static, base_hp = preset("paper")
-    agent_kw, train_kw, hp_kw = PRESETS[name]
+    agent_kw, train_kw, hp_kw = (
+        preset_values(cls, name, changed_only=True) for cls in (AgentConfig, TrainConfig, HParams)
+    )
     changed = [(k, static.agent, base_static.agent) for k in agent_kw]
     changed += [(k, static, base_static) for k in train_kw]
     changed += [(k, hp, base_hp) for k in hp_kw]

@@ -11,16 +11,46 @@ import tyro
 
 from advisor_jax.agent.baselines import (
     BASELINE_AGENTS,
+    BASELINE_KEYS,
+    BASELINE_NAMES,
     check_baseline_hparams,
+    check_hparam_names,
     parse_baseline_settings,
 )
 from advisor_jax.agent.config import PRESETS, TrainConfig, preset
+from advisor_jax.agent.hparams import PRIOR_HPARAMS, HParams
+from advisor_jax.agent.settings import describe, replace_flat
 from advisor_jax.training.population import (
     SEED_MAX,
     build_population,
     check_seed,
     parse_assignments,
 )
+
+
+def _preset_help() -> str:
+    return "Starting point: " + "; ".join(f"{p.name}: {p.help}" for p in PRESETS.values()) + "."
+
+
+def _hparams_help(what: str) -> str:
+    """``what``, then every hyperparameter as declared (``settings.describe``)."""
+    parts = [what, "Hyperparameters (NAME: meaning. value in paper (other presets), range):"]
+    parts += describe(HParams)
+    for kind, cls in PRIOR_HPARAMS.items():
+        parts.append(f"{BASELINE_NAMES[kind]} only:")
+        parts += [line for line in describe(cls) if line not in parts]
+    return "\n".join(parts)
+
+
+def _baseline_help() -> str:
+    keys = "; ".join(
+        f"{', '.join(k)} ({BASELINE_NAMES[kind]})" for kind, k in BASELINE_KEYS.items()
+    )
+    return (
+        f"Baseline static settings KEY=VALUE: {keys}; e.g. --baseline learner=td3 "
+        "bc_steps=2000 or model_hidden=500,500. learner is ddpg or td3. Sweepable settings "
+        "are hyperparameters (--hp/--grid)."
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,12 +65,7 @@ class TrainArgs:
       advisor-jax train --preset physical --agent MCP+MF --seeds 6 --baseline learner=td3
     """
 
-    preset: Literal["quick", "paper", "stable", "physical"] = "quick"
-    """Starting point: quick (small networks, minutes on a CPU), paper (Tables A2/A4,
-    simulation), stable (paper with Eq. 2's Â clipped to the action box, a scale-free
-    step β = 1 and the TD target clipped to the arena's return bounds: no seed of any
-    Table 1 type below the advisor in 16; docs/architecture.md R33-R35), physical (Tables
-    A2/A4, physical column, physical arena)."""
+    preset: Annotated[Literal[tuple(PRESETS)], tyro.conf.arg(help=_preset_help())] = "quick"
     agent: str = "ATD3+AfDP"
     """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1), or
     a baseline (docs/baselines.md): LfD (advisor demonstrations, imitation, then DDPG) or
@@ -50,17 +75,17 @@ class TrainArgs:
     """Independent seeds per grid point."""
     seed: int = 0
     """First seed; the seeds are seed, seed+1, ..."""
-    hp: tuple[str, ...] = ()
-    """Hyperparameter overrides NAME=VALUE, e.g. --hp lr_actor=1e-4 beta=0.05."""
-    grid: tuple[str, ...] = ()
-    """Hyperparameter sweep NAME=V1,V2,... (cartesian product over all given names)."""
-    baseline: tuple[str, ...] = ()
-    """Baseline static settings KEY=VALUE: learner=ddpg|td3, bc_steps, bc_batch,
-    critic_warmup (LfD, MCP+MF); model_hidden (e.g. 500,500), model_steps, model_batch,
-    mpc_horizon, mpc_candidates, mpc_rounds, dagger_rounds (MCP+MF); e.g. --baseline
-    learner=td3 bc_steps=2000. Sweepable settings are hyperparameters (--hp/--grid):
-    demo_episodes, bc_lr (LfD); random_episodes, mpc_episodes, dagger_episodes, bc_lr,
-    model_lr, model_noise (MCP+MF)."""
+    hp: Annotated[
+        tuple[str, ...],
+        tyro.conf.arg(help=_hparams_help(
+            "Hyperparameter overrides NAME=VALUE, e.g. --hp lr_actor=1e-4 beta=0.05.")),
+    ] = ()  # fmt: skip
+    grid: Annotated[
+        tuple[str, ...],
+        tyro.conf.arg(help="Hyperparameter sweep NAME=V1,V2,... (cartesian product over all "
+                      "given names); the names --hp takes."),
+    ] = ()  # fmt: skip
+    baseline: Annotated[tuple[str, ...], tyro.conf.arg(help=_baseline_help())] = ()
     episodes: int | None = None
     """N_total, training episodes per agent (preset default if omitted)."""
     arena: str | None = None
@@ -74,10 +99,10 @@ class TrainArgs:
     precision: Literal["fp32", "bf16"] = "fp32"
     """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
     activations with fp32 parameters, Adam and accumulation (faster on GPUs with bf16
-    tensor cores: ×1.79 learner updates and ×1.72 training steps at 64 agents on an H100;
-    acting is always fp32). Recommended for GPU sweeps of these agents: 16 paired seeds
-    of ATD3+AfDP and of DDPG at --preset stable learn the same in bf16
-    (results/precision_study.md); other agent types and presets are not checked."""
+    tensor cores: results/bench_learner_cublas/; acting is always fp32). Recommended for
+    GPU sweeps of these agents: 16 paired seeds of ATD3+AfDP and of DDPG at --preset
+    stable learn the same in bf16 (results/precision_study.md); other agent types and
+    presets are not checked."""
     batch_size: int | None = None
     """Minibatch size override."""
     buffer_size: int | None = None
@@ -168,16 +193,18 @@ def build_run(args: TrainArgs):
     for name, values in overrides.items():
         if len(values) != 1:
             raise ValueError(f"--hp {name} takes one value; use --grid to sweep several")
-    base_hp = base_hp.replace(**{k: v[0] for k, v in overrides.items()})
     grid = parse_assignments(args.grid, "--grid")
+    # A baseline hyperparameter of another agent (demo_episodes for DDPG or MCP+MF): an
+    # unknown baseline setting; episode counts against N_total per grid point, before
+    # compiling.
+    check_hparam_names(cfg.agent.baseline, [*overrides, *grid], args.agent)
+    base_hp = replace_flat(base_hp, **{k: v[0] for k, v in overrides.items()})
     both = sorted(set(overrides) & set(grid))
     if both:
         raise ValueError(
             f"{', '.join(both)} given to both --hp and --grid (the grid would override --hp); "
             "give each name once"
         )
-    # A baseline HParam of another agent (demo_episodes for DDPG or MCP+MF): an unknown
-    # baseline setting; episode counts against N_total per grid point, before compiling.
     seeds = list(range(args.seed, args.seed + args.seeds))
     hp_check = build_population(base_hp, grid, seeds)[0] if grid else base_hp
     check_baseline_hparams(

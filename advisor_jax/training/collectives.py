@@ -200,14 +200,14 @@ def sharded_chunk_hlo(cfg, n_agents: int, devices: int) -> str:
     import jax
     import jax.numpy as jnp
 
-    from advisor_jax.agent.config import HParams
+    from advisor_jax.agent.config import default_hparams
     from advisor_jax.training.devices import pad, place
-    from advisor_jax.training.program import population_functions
     from advisor_jax.training.population import agent_keys, build_population
+    from advisor_jax.training.program import population_functions
 
     placement = place(n_agents, devices)
     _, init_fn, chunk_fn = population_functions(cfg, placement)
-    hp, _ = build_population(HParams(), {}, seeds=list(range(n_agents)))
+    hp, _ = build_population(default_hparams(cfg.agent), {}, seeds=list(range(n_agents)))
 
     def abstract(tree):
         sharding = placement.agents()

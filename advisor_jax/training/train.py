@@ -55,12 +55,14 @@ import jax.numpy as jnp
 
 import envs
 from advisor_jax.agent.advisor import advisor_action, arena_advisor
-from advisor_jax.agent.config import HParams, TrainConfig, freeze
+from advisor_jax.agent.config import TrainConfig
+from advisor_jax.agent.hparams import HParams
 from advisor_jax.agent.learner import Learner, make_learner, nan_like
 from advisor_jax.agent.networks import make_actor
 from advisor_jax.agent.noise import ou_init, ou_reset, ou_step
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.agent.selector import select_action
+from advisor_jax.agent.settings import freeze
 from advisor_jax.contract import spec
 from advisor_jax.training.state import (
     EpisodeLog,

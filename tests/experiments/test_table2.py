@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
 import table2  # noqa: E402
 
 from advisor_jax.agent.config import preset  # noqa: E402
+from advisor_jax.agent.settings import flat_items, replace_flat
 
 
 def _evaluation(success, collision, speed, speed_sd, episodes=20):
@@ -38,11 +39,11 @@ def _run(
 ) -> Path:
     """A finished run of ``agent`` with seeds 0.. as run_training writes its run.json."""
     cfg, hp = preset("physical", agent)
-    hp = dataclasses.replace(hp, **hp_overrides)
+    hp = replace_flat(hp, **hp_overrides)
     config = dataclasses.asdict(cfg)
     config["arena"] = arena
     n = len(final["success"])
-    agents = [{**dataclasses.asdict(hp), "seed": s, "index": s} for s in range(n)]
+    agents = [{**flat_items(hp), "seed": s, "index": s} for s in range(n)]
     run_dir = root / agent.replace("+", "_")
     run_dir.mkdir(parents=True)
     summary = {

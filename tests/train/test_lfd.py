@@ -25,6 +25,7 @@ from advisor_jax.agent.config import (
     preset,
     train_config_from_dict,
 )
+from advisor_jax.agent.hparams import BaselineHParams, LfdHParams
 from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
@@ -55,7 +56,7 @@ TINY_LFD = TrainConfig(
 )
 # demo_episodes (slowest) × seeds; OU σ = 0 so that a demonstration's executed action is
 # the advisor's own and can be checked exactly.
-BASE_HP = HParams(lr_actor=1e-3, ou_sigma=0.0)
+BASE_HP = BaselineHParams(rl=HParams(lr_actor=1e-3, ou_sigma=0.0), prior=LfdHParams())
 GRID = {"demo_episodes": [1.0, 2.0]}
 SEEDS = [0, 1]
 N_CHUNKS = 5  # max_steps = 4 × 40 + 30 + 10 = 200 = 5 × 40
@@ -145,9 +146,9 @@ def test_phases_follow_the_schedule(lfd_population, lfd_functions):
         assert np.all(np.diff(p) >= 0), "phases run in order, once each"
         assert np.sum(p == 1) == BC_STEPS and np.sum(p == 2) == WARMUP
         demo_end = np.flatnonzero(p == 1)[0]  # the first imitation step
-        assert episodes[a, demo_end - 1] == hp.demo_episodes[a]  # the D-th demo just ended
-        assert np.all(episodes[a, p == 1] == hp.demo_episodes[a])  # no episode while held
-        assert np.all(episodes[a, p == 2] == hp.demo_episodes[a])
+        assert episodes[a, demo_end - 1] == hp.prior.demo_episodes[a]  # the D-th demo just ended
+        assert np.all(episodes[a, p == 1] == hp.prior.demo_episodes[a])  # no episode while held
+        assert np.all(episodes[a, p == 2] == hp.prior.demo_episodes[a])
         assert np.all(np.isfinite(metrics["bc/loss"][a, p == 1]))
         assert np.all(np.isnan(metrics["bc/loss"][a, p != 1]))
         assert np.all(np.isfinite(metrics["critic/warmup_loss"][a, p == 2]))
@@ -165,8 +166,8 @@ def test_demonstrations_are_the_advisors_and_count_in_the_budget(lfd_population)
     state, _, hp, _ = lfd_population
     advisor = arena_advisor_params()
     log = state.log
-    for a in range(len(hp.demo_episodes)):
-        d = int(hp.demo_episodes[a])
+    for a in range(len(hp.prior.demo_episodes)):
+        d = int(hp.prior.demo_episodes[a])
         assert np.all(log.outcome[a] > 0), "all N_total episodes played"
         np.testing.assert_array_equal(log.actor_steps[a, :d], 0)
         np.testing.assert_array_equal(log.actor_steps[a, d:], log.length[a, d:])
@@ -259,8 +260,8 @@ def test_lfd_config_names_round_trip():
             "critic_state_hidden", "critic_hidden", "buffer_size", "batch_size",
             "policy_delay")}, baseline=BaselineConfig())  # fmt: skip
         assert train_config_from_dict(dataclasses.asdict(cfg)) == cfg
-    assert preset("paper", "LfD")[1].demo_episodes == 250
-    assert preset("physical", "LfD")[1].demo_episodes == 100
+    assert preset("paper", "LfD")[1].prior.demo_episodes == 250
+    assert preset("physical", "LfD")[1].prior.demo_episodes == 100
     td3 = preset("physical", "LfD", baseline={"learner": "td3"})[0].agent
     assert td3.algo == "td3" and td3.twin and td3.delay == 3 and td3.name == "LfD"
     assert preset("quick", "lfd")[0].agent.baseline.bc_steps == 200
@@ -301,7 +302,7 @@ def test_cli_builds_an_lfd_population():
     assert cfg.agent.name == "LfD" and cfg.agent.algo == "td3"
     assert cfg.agent.baseline == BaselineConfig(bc_steps=200, bc_batch=128, critic_warmup=0)
     assert grid == {"demo_episodes": [10.0, 30.0]} and seeds == [0, 1]
-    assert base_hp.bc_lr == pytest.approx(3e-4) and cfg.episodes == 60
+    assert base_hp.prior.bc_lr == pytest.approx(3e-4) and cfg.episodes == 60
 
 
 @pytest.mark.parametrize(

@@ -25,6 +25,7 @@ from advisor_jax.agent.config import (
     preset,
     train_config_from_dict,
 )
+from advisor_jax.agent.hparams import BaselineHParams, McpHParams
 from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
@@ -70,7 +71,10 @@ TINY_MCP = TrainConfig(
 )
 # R = 1, M ∈ {1, 2} (slowest) × seeds, one DAgger episode per round: 1 + 2M + 1 < 8.
 # OU σ = 0: a DAgger step executes the actor's own action.
-BASE_HP = HParams(lr_actor=1e-3, ou_sigma=0.0, random_episodes=1, dagger_episodes=1)
+BASE_HP = BaselineHParams(
+    rl=HParams(lr_actor=1e-3, ou_sigma=0.0),
+    prior=McpHParams(random_episodes=1, dagger_episodes=1),
+)
 GRID = {"mpc_episodes": [1.0, 2.0]}
 SEEDS = [0, 1]
 OFFLINE = 1 + MODEL_STEPS * (1 + MPC_ROUNDS) + BC_STEPS * (1 + DAGGER_ROUNDS) + WARMUP
@@ -101,7 +105,7 @@ def mcp_population(mcp_functions):
 
 def _episode_phase(hp, a):
     """Per episode of agent ``a``: its collect phase name (random, mpc, dagger, rl)."""
-    r, m, d = (int(getattr(hp, f)[a]) for f in ("random_episodes", "mpc_episodes",
+    r, m, d = (int(getattr(hp.prior, f)[a]) for f in ("random_episodes", "mpc_episodes",
                                                  "dagger_episodes"))  # fmt: skip
     names = ["random"] * r + ["mpc"] * (MPC_ROUNDS * m) + ["dagger"] * (DAGGER_ROUNDS * d)
     return names + ["rl"] * (TINY_MCP.episodes - len(names))
@@ -118,7 +122,7 @@ def test_phases_follow_the_schedule(mcp_population, mcp_functions):
         assert np.all(np.diff(p) >= 0), "phases run in order, once each"
         assert [int(np.sum(p == i)) for i in (1, 2, 4, 6, 7, 9, 10)] == [
             1, MODEL_STEPS, MODEL_STEPS, MODEL_STEPS, BC_STEPS, BC_STEPS, WARMUP]  # fmt: skip
-        m = int(hp.mpc_episodes[a])
+        m = int(hp.prior.mpc_episodes[a])
         targets = {0: 1, 3: 1 + m, 5: 1 + 2 * m, 8: 2 + 2 * m}  # collect phase -> N at its end
         for i, n in targets.items():
             after = np.flatnonzero(p == i + 1)
@@ -142,7 +146,7 @@ def test_episodes_by_their_controllers_count_in_the_budget(mcp_population):
     executed, the MPC's stored as the label; labelled rows start after the random data."""
     state, _, hp, _, _ = mcp_population
     log = state.log
-    for a in range(len(hp.mpc_episodes)):
+    for a in range(len(hp.prior.mpc_episodes)):
         names = np.array(_episode_phase(hp, a))
         assert np.all(log.outcome[a] > 0), "all N_total episodes played"
         by_actor = np.isin(names, ("dagger", "rl"))
@@ -167,7 +171,7 @@ def test_the_model_is_fitted(mcp_population):
     """The first fit (random data only, normaliser just set): the loss falls, and the
     model's parameters and normaliser have left their initial values."""
     state, metrics, hp, _, start = mcp_population
-    for a in range(len(hp.mpc_episodes)):
+    for a in range(len(hp.prior.mpc_episodes)):
         first_fit = metrics["model/loss"][a, metrics["train/phase"][a] == 2]
         assert np.mean(first_fit[-5:]) < 0.8 * np.mean(first_fit[:5]), first_fit
         model, model0 = agent_slice(state.prior.data.model, a), agent_slice(
@@ -272,7 +276,9 @@ def test_mcp_presets_and_config_round_trip():
                          ("quick", (6, 8, 4))):  # fmt: skip
         cfg, hp = preset(name, "MCP+MF")
         assert cfg.agent.name == "MCP+MF" and cfg.agent.algo == "ddpg"
-        assert (hp.random_episodes, hp.mpc_episodes, hp.dagger_episodes) == counts
+        assert (hp.prior.random_episodes, hp.prior.mpc_episodes, hp.prior.dagger_episodes) == (
+            counts
+        )
         assert train_config_from_dict(json.loads(json.dumps(dataclasses.asdict(cfg)))) == cfg
         b = cfg.agent.baseline
         assert 2 * (counts[0] + b.mpc_rounds * counts[1] + b.dagger_rounds * counts[2]) == (

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.agent.config import HParams
+from advisor_jax.agent.hparams import BaselineHParams, HParams, LfdHParams
 from advisor_jax.training.prior import phases
 
 CHUNK = 1000
@@ -31,7 +31,7 @@ def _act(*args):
 
 def _schedule(*parts) -> phases.Schedule:
     """parts: an int (an offline phase of that many steps) or a str (a collect phase whose
-    episode count is that HParams field)."""
+    episode count is that hyperparameter of the prior phases)."""
     made = [phases.Phase(f"c{i}", episodes=p, act=_act) if isinstance(p, str) else
             phases.Phase(f"o{i}", steps=p, update=_update, gated=True)
             for i, p in enumerate(parts)]  # fmt: skip
@@ -133,9 +133,10 @@ def test_population_gate_reads_the_state_and_masks_padding():
     """From counters: agent 0 demonstrating (N 3 < D 30), agent 1 in warm-up 400 steps from
     RL, agent 2 a padding copy (N = N_total, k = 6000: in RL) masked by n_real = 2."""
     n_total = 60
-    hp = jax.tree.map(lambda x: jnp.full((3,), x), HParams()).replace(
-        demo_episodes=jnp.asarray([30.0, 30.0, 30.0])
+    hp = jax.tree.map(
+        lambda x: jnp.full((3,), x), BaselineHParams(rl=HParams(), prior=LfdHParams())
     )
+    hp = hp.replace(prior=hp.prior.replace(demo_episodes=jnp.asarray([30.0, 30.0, 30.0])))
 
     def state(episodes, offline):
         prior = SimpleNamespace(offline_steps=jnp.asarray(offline, jnp.int32))

@@ -4,7 +4,7 @@ Pfeiffer et al. pre-train a navigation policy by imitating expert demonstrations
 train it by RL starting from the imitated actor, with a fresh value function. Ours, with the
 advisor as the expert and DDPG (or TD3) as the RL learner::
 
-    demo      D = hp.demo_episodes episodes: a = clip(a_adv + OU noise)     (counted in N_total)
+    demo      D = demo_episodes episodes: a = clip(a_adv + OU noise)     (counted in N_total)
               replay.add(s, a, a_adv, r, s', terminal)   a_adv: the clean label
     imitate   bc_steps times: B ~ replay (= the demonstrations only)
               φ ← Adam(bc_lr) step of (1/n) Σ ‖π_φ(s) − a_adv‖²            (agent/imitation.py)
@@ -48,7 +48,7 @@ def lfd_schedule(cfg: TrainConfig, learner, actor, env=None) -> Schedule:
         batch = replay_sample(state.replay, k_sample, settings.bc_batch)
         params, opt, metrics = imitation_step(
             actor, state.learner.actor, state.prior.data, batch.obs, batch.advisor_action,
-            hp.bc_lr,
+            hp.prior.bc_lr,
         )  # fmt: skip
         learner_state = state.learner.replace(actor=params, target_actor=params)
         bad = ~jnp.isfinite(metrics["bc/loss"])
@@ -74,9 +74,9 @@ def warm_critic(cfg: TrainConfig, learner):
     def update(state, hp):
         key, k_sample, k_critic = jax.random.split(state.key, 3)
         batch = replay_sample(state.replay, k_sample, cfg.agent.batch_size)
-        learner_state, m = learner.critic_step(state.learner, batch, k_critic, hp)
+        learner_state, m = learner.critic_step(state.learner, batch, k_critic, hp.rl)
         learner_state = learner_state.replace(
-            target_critic=soft_update(learner_state.target_critic, learner_state.critic, hp.tau)
+            target_critic=soft_update(learner_state.target_critic, learner_state.critic, hp.rl.tau)
         )
         metrics = {"critic/warmup_loss": m["loss/critic"], "critic/warmup_q": m["q/mean"]}
         bad = ~(jnp.isfinite(m["loss/critic"]) & jnp.isfinite(m["grad_norm/critic"]))

@@ -6,18 +6,18 @@ robot by random-shooting MPC through it while aggregating the MPC's data and ref
 fit a policy to the MPC's actions (then DAgger), and fine-tune that policy model-free. Ours,
 with DDPG (or TD3) as the model-free learner, every episode counted against N_total::
 
-    random      R = hp.random_episodes episodes, a ~ U(action box) i.i.d., no OU noise
+    random      R = random_episodes episodes, a ~ U(action box) i.i.d., no OU noise
     normalise   1 step: the model's normaliser from the random data, frozen from then on;
                 label_start = replay.size (rows from here on carry the MPC's label)
     fit_model   model_steps steps: model.fit_step on the whole replay buffer
     mpc_rounds × [
-      mpc       M = hp.mpc_episodes episodes: a = MPC(s) (K candidates, horizon H), no noise,
+      mpc       M = mpc_episodes episodes: a = MPC(s) (K candidates, horizon H), no noise,
                 stored label = a
       fit_model model_steps steps (data aggregated: the same weights refitted on all of it) ]
     fit_actor   bc_steps steps: imitation_step of the actor on rows [label_start, size):
                 (s, MPC label); the target actor follows the actor
     dagger_rounds × [
-      dagger    hp.dagger_episodes episodes: the actor + OU noise acts, the MPC labels s
+      dagger    dagger_episodes episodes: the actor + OU noise acts, the MPC labels s
                 (the model is frozen from the last fit_model on)
       fit_actor bc_steps steps, all labelled rows ]
     warmup      critic_warmup critic-only steps (LfD's, training/lfd.py)
@@ -106,8 +106,8 @@ def mcp_schedule(cfg: TrainConfig, learner, actor, env) -> Schedule:
         key, k_fit = jax.random.split(state.key)
         replay = state.replay
         ms, loss = model.fit_step(
-            state.prior.data.model, replay.data, replay.size, k_fit, hp.model_lr,
-            hp.model_noise, settings.model_batch,
+            state.prior.data.model, replay.data, replay.size, k_fit, hp.prior.model_lr,
+            hp.prior.model_noise, settings.model_batch,
         )  # fmt: skip
         return with_data(state.replace(key=key), model=ms), {"model/loss": loss}, ~jnp.isfinite(
             loss)  # fmt: skip
@@ -119,7 +119,7 @@ def mcp_schedule(cfg: TrainConfig, learner, actor, env) -> Schedule:
         idx = data.label_start + jax.random.randint(k_idx, (settings.bc_batch,), 0, labelled)
         params, opt, metrics = imitation_step(
             actor, state.learner.actor, data.bc_opt, replay.data.obs[idx],
-            replay.data.advisor_action[idx], hp.bc_lr,
+            replay.data.advisor_action[idx], hp.prior.bc_lr,
         )  # fmt: skip
         learner_state = state.learner.replace(actor=params, target_actor=params)
         state = with_data(state.replace(learner=learner_state, key=key), bc_opt=opt)

@@ -9,7 +9,7 @@ there is one compiled program and checkpoint / resume work unchanged; the agent'
 each scan step is a pure function of its own counters::
 
     phase = first i whose target is not reached, else RL (= len(phases))
-        collect phase i:  done once N  >= Σ_{collect j ≤ i} hp.<phase j's episodes field>
+        collect phase i:  done once N  >= Σ_{collect j ≤ i} <phase j's episodes field>
         offline phase i:  done once k  >= Σ_{offline j ≤ i} phase j's steps
     (N = completed episodes, the episode budget's counter; k = offline steps done)
 
@@ -159,7 +159,7 @@ def phase_index(schedule: Schedule, episodes: jax.Array, offline: jax.Array, hp:
     done, n_target, k_target = [], 0.0, 0
     for phase in schedule.phases:
         if phase.act is not None:
-            n_target = n_target + getattr(hp, phase.episodes)
+            n_target = n_target + getattr(hp.prior, phase.episodes)
             done.append(episodes >= n_target)
         else:
             k_target += phase.steps
@@ -360,8 +360,9 @@ def episode_phases(schedule: Schedule, hp: HParams, n_total: int) -> np.ndarray:
     """[agents, N_total] int8: the phase (index into ``schedule.names``) that played each
     episode, from the stacked hyperparameters (host side: metrics.npz, episodes.csv)."""
     collect = [(i, p) for i, p in enumerate(schedule.phases) if p.act is not None]
-    counts = [np.atleast_1d(np.asarray(getattr(hp, p.episodes), np.float64)) for _, p in collect]
-    n_agents = counts[0].size if counts else np.atleast_1d(np.asarray(hp.gamma)).size
+    counts = [np.atleast_1d(np.asarray(getattr(hp.prior, p.episodes), np.float64))
+              for _, p in collect]  # fmt: skip
+    n_agents = counts[0].size if counts else np.atleast_1d(np.asarray(hp.rl.gamma)).size
     episode = np.arange(n_total)[None, :]
     out = np.full((n_agents, n_total), len(schedule.phases), np.int8)  # RL
     ends = np.cumsum(counts, axis=0) if counts else []

@@ -29,9 +29,11 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from advisor_jax.agent.config import TrainConfig, freeze
+from advisor_jax.agent.config import TrainConfig
+from advisor_jax.agent.hparams import BaselineHParams
 from advisor_jax.agent.noise import ou_step
 from advisor_jax.agent.replay_buffer import replay_add
+from advisor_jax.agent.settings import freeze
 from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.lfd import lfd_schedule
 from advisor_jax.training.prior.mcp import mcp_schedule
@@ -98,7 +100,7 @@ def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> Pri
         key, _, k_noise, k_phase = jax.random.split(state.key, 4)
         obs = state.env.obs  # [E, 20]
         actor_action, adv_action = core.act(state, obs)
-        noise_state, noise = ou_step(state.noise, k_noise, hp.ou_theta, hp.ou_sigma)
+        noise_state, noise = ou_step(state.noise, k_noise, hp.rl.ou_theta, hp.rl.ou_sigma)
         control, acting = phases.control(
             schedule, phase, state, obs, actor_action, adv_action, k_phase, hp, gate
         )
@@ -113,13 +115,16 @@ def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> Pri
         active = active & acting
         return core.record(state, key, env_state, noise_state, replay, fired, done, active)
 
-    def step(state: PriorState, hp, step_index: jax.Array, gate):
+    def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
+        return core.learn(state, hp.rl, step_index)
+
+    def step(state: PriorState, hp: BaselineHParams, step_index: jax.Array, gate):
         active = (state.episodes < n_total) & ~state.diverged
         # The phase at the start of the step decides both halves.
         phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
         state = collect(state, hp, active, phase, gate)
         state, metrics, nonfinite = phases.learn(
-            schedule, phase, state, freeze(hp, active), step_index, core.learn, gate
+            schedule, phase, state, freeze(hp, active), step_index, rl_learn, gate
         )
         return core.finish(state, active, nonfinite, metrics)
 
