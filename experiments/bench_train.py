@@ -145,7 +145,7 @@ def main() -> None:
         default="auto",
         choices=sorted(PROGRAMS),
         help="the chunk's program: auto (as training picks it: the latency-bound program "
-        "for populations of at most host_loop.LATENCY_BOUND_AGENTS per GPU), general (a "
+        "for populations of at most program.LATENCY_BOUND_AGENTS per GPU), general (a "
         "lax.cond per step for warm-up and the TD3 delay, XLA's scheduling) or steady (the "
         "latency-bound program: no conditional in the loop, overlapping kernels)",
     )

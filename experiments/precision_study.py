@@ -258,7 +258,7 @@ def main() -> None:
         "with ATD3's policy delay at the preset's d = 4 (the fp32 runs are those of "
         "`results/table1_stable/run_data`, on an H200, not Table 1's d = 2 ATD3+AfDP row; "
         "the bf16 runs on an H100). `cuBLAS` rows: today's bf16 program, every GEMM on "
-        "cuBLAS (`agent/compiler_options.py`) and the twin critics' inputs per critic; "
+        "cuBLAS (`training/program.py`) and the twin critics' inputs per critic; "
         "the other bf16 rows ran XLA's Triton GEMMs with shared twin inputs. "
         "`no Q̂ clip` rows: `stable` as it was before, at "
         "`clip_q_target=0` (all on an H100; the fp32 ATD3+AfDP runs are issue 16's). "

@@ -2,7 +2,7 @@
 
 On GPUs the training chunk runs its *steady* program once past warm-up: the same steps with
 no ``lax.cond`` inside, compiled with overlapping kernels and whole-loop CUDA graphs
-(``training.train``, ``agent.compiler_options``). The two programs fuse and order their
+(``training.train``, ``training.program``). The two programs fuse and order their
 float reductions differently, so they cannot agree bit for bit, and Adam turns tiny
 gradient differences into step-size ones. So each chunk after warm-up is run from one state
 S three ways: the general program, the steady program, and the general program on S with

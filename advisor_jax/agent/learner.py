@@ -152,6 +152,9 @@ def make_learner(
     ``inputs_per_critic``: the twin critics' input layout (``networks.apply_critics``) of
     all this learner's critics, its fp32 acting critic too; the program that runs the
     learner chooses it (``training.program.twin_inputs_per_critic``).
+
+    Long: the factory of the learner's closures (init, selector Q, the two steps and the
+    three whole updates), which share its networks and settings; each is short.
     """
     if not isinstance(cfg, AgentConfig):
         raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")

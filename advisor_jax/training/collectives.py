@@ -1,4 +1,4 @@
-"""Cross-device collectives of a compiled program, and where they sit (issue 18).
+"""Cross-device collectives of a compiled program, and where they sit.
 
 A population sharded along its agent axis (``devices``) should compile to a program whose
 chunk scan exchanges nothing between devices: every agent is independent. This module reads

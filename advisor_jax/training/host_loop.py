@@ -37,6 +37,7 @@ import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -56,6 +57,7 @@ from advisor_jax.training import (
     runlock,
 )
 from advisor_jax.training.devices import (
+    Placement,
     freeze_padding,
     from_writer,
     is_writer,
@@ -131,19 +133,52 @@ def run_training(
     lock = runlock.exclusive(out_dir) if is_writer() else contextlib.nullcontext()
     with lock, runlock.sigterm_as_interrupt():
         return _train_locked(
-            cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-            checkpoint_every, resume, progress, console, meta, program, placement, eval_from,
+            RunPlan(
+                cfg=cfg, hp=hp, agents=agents, grid=grid, out_dir=out_dir,
+                eval_episodes=eval_episodes, eval_arenas=eval_arenas,
+                checkpoint_every=checkpoint_every, resume=resume, progress=progress,
+                console=console, meta=meta, program=program, placement=placement,
+                eval_from=eval_from,
+            )
         )  # fmt: skip
 
 
-def _train_locked(
-    cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-    checkpoint_every, resume, progress, console, meta, program, placement, eval_from,
-) -> dict:  # fmt: skip
+@dataclasses.dataclass(frozen=True)
+class RunPlan:
+    """A ``run_training`` call with its options checked: what ``_train_locked`` runs."""
+
+    cfg: TrainConfig
+    hp: Any  # the real agents' stacked hyperparameters (``build_population``)
+    agents: list[dict]  # run.json's rows, one per agent
+    grid: Mapping[str, Sequence[float]]
+    out_dir: Path
+    eval_episodes: int
+    eval_arenas: Sequence[str]
+    checkpoint_every: int
+    resume: bool
+    progress: bool
+    console: Console
+    meta: Mapping | None
+    program: tuple | None  # ``population_functions(cfg, placement)``, or None: build it
+    placement: Placement
+    eval_from: int  # the evaluation episodes' seed
+
+
+def _train_locked(run: RunPlan) -> dict:
     """``run_training`` once its options are checked and ``out_dir`` is held.
 
     During training the state is padded and sharded (``devices``); everything written or
-    reported is of the real agents only (``real``), gathered to the host."""
+    reported is of the real agents only (``real``), gathered to the host.
+
+    Long: the run in the order it happens (start or resume, the chunk loop with its
+    checkpoints, an interrupt's checkpoint and partial outputs, the final outputs), so that
+    each path's effect on the run directory reads in one place."""
+    cfg, hp, agents, grid, out_dir = run.cfg, run.hp, run.agents, run.grid, run.out_dir
+    eval_episodes, eval_arenas, checkpoint_every = (
+        run.eval_episodes, run.eval_arenas, run.checkpoint_every
+    )  # fmt: skip
+    resume, progress, console, meta = run.resume, run.progress, run.console, run.meta
+    program, placement, eval_from = run.program, run.placement, run.eval_from
     run_file = out_dir / "run.json"
     if run_file.exists() and not resume:
         raise ValueError(

@@ -125,7 +125,7 @@ def population_functions(
     per_critic = twin_inputs_per_critic()
     # The agent axis carries the mesh axis's name: a collective over it inside the step
     # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
-    # written; tests/train/test_collectives.py injects one to show that its check of the
+    # written; tests/training/test_collectives.py injects one to show that its check of the
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
         trainer = make_train(cfg, steady, per_critic)

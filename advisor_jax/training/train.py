@@ -38,7 +38,7 @@ blocks of d steps written out in a row, whose first step takes the actor update
 (``Learner.update_with_actor``) and whose others do not (``update_critic_only``), all past
 warm-up. One ``lax.cond`` per chunk picks it when the whole chunk is past warm-up and starts
 a delay period (``steady_at``), the general program otherwise. Both run the same operations
-on the same random streams (tests/train/test_steady_program.py,
+on the same random streams (tests/training/test_steady_program.py,
 experiments/steady_parity.py). Without conditionals a GPU runs the whole loop as one graph
 of overlapping kernels (``program.compiler_options``; ``results/bench_train_steady/``).
 """
@@ -130,7 +130,10 @@ def learner_key(key: jax.Array) -> jax.Array:
 
 def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
     """The pieces of one agent type's step (static config); ``inputs_per_critic``: the
-    twin critics' input layout (``program.twin_inputs_per_critic``)."""
+    twin critics' input layout (``program.twin_inputs_per_critic``).
+
+    Long: the factory of the step's closures, which share its env, learner and settings;
+    each is short."""
     agent = cfg.agent
     env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)  # 0: arena's
     advisor = arena_advisor(env)

@@ -1,4 +1,4 @@
-"""Export + numpy runner in the loop of the simulated physical arena (issue 4, item 4).
+"""Export + numpy runner in the loop of the simulated physical arena.
 
 A small MLP is cloned from the advisor (so episodes reach the goal as well as collide),
 exported, loaded by the numpy runner, and driven from simulated RPLIDAR scans and tracked

@@ -20,7 +20,7 @@ import pytest
 
 from advisor_jax.agent import networks
 from advisor_jax.contract import spec
-from tests.learn.conftest import SMALL
+from tests.agent.conftest import SMALL
 
 he_init = nn.initializers.he_normal()
 CFG = SimpleNamespace(

@@ -12,7 +12,7 @@ import envs
 from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys
 from tests.compare import assert_same_agent
-from tests.train.conftest import GOOD, TINY, agent_slice, run_chunks
+from tests.training.conftest import GOOD, TINY, agent_slice, run_chunks
 
 
 def _assert_same(a, b, what):

@@ -23,7 +23,7 @@ from advisor_jax.training.devices import Placement, place
 from advisor_jax.training.population import agent_keys
 from advisor_jax.training.program import LATENCY_BOUND_AGENTS, latency_bound, population_functions
 from advisor_jax.training.train import steady_at
-from tests.train.conftest import GOOD, TINY, _population, primitive_names
+from tests.training.conftest import GOOD, TINY, _population, primitive_names
 
 ROUNDING = 1e-4
 """Largest ||general - steady|| / ||general|| accepted after one 40-step chunk (fp32): the

@@ -33,7 +33,7 @@ from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.trainer import make_prior_program
 from advisor_jax.training.run_directory import load_actor
 from tests.compare import assert_same_agent
-from tests.train.conftest import (
+from tests.training.conftest import (
     agent_slice,
     assert_gate_covers_play,
     gate_function,

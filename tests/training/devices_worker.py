@@ -1,12 +1,12 @@
-"""Trains the TINY population of tests/train/conftest.py on N forced CPU devices (a subprocess).
+"""Trains the TINY population of tests/training/conftest.py on N forced CPU devices (a subprocess).
 
-    python tests/train/devices_worker.py DEVICES MODE=OUT [MODE=OUT ...] [PROCESS_ID PORT]
+    python tests/training/devices_worker.py DEVICES MODE=OUT [MODE=OUT ...] [PROCESS_ID PORT]
 
 MODE is ``full`` (a whole run), ``interrupt`` (stop after the first chunk, checkpoint saved)
 or ``resume`` (finish an interrupted run); the runs share one compiled program. With
 PROCESS_ID and PORT the process is one of two of a jax.distributed job on localhost
 (coordinator 127.0.0.1:PORT) and DEVICES counts its local devices. XLA's CPU device count is
-fixed when JAX starts, so each device count needs its own process; tests/train/
+fixed when JAX starts, so each device count needs its own process; tests/training/
 test_devices.py runs this and compares the outputs with the one-device run.
 """
 
@@ -30,7 +30,7 @@ import jax  # noqa: E402
 from advisor_jax.training import reporting  # noqa: E402
 from advisor_jax.training.devices import initialize_distributed, place  # noqa: E402
 from advisor_jax.training.host_loop import population_functions, run_training  # noqa: E402
-from tests.train.conftest import RUN_HP, RUN_SEEDS, TINY  # noqa: E402
+from tests.training.conftest import RUN_HP, RUN_SEEDS, TINY  # noqa: E402
 
 
 def main() -> None:

@@ -21,7 +21,7 @@ import pytest
 from advisor_jax.agent import networks
 from advisor_jax.contract import spec
 from advisor_jax.training.program import twin_inputs_per_critic
-from tests.learn.conftest import SMALL
+from tests.agent.conftest import SMALL
 
 CFG = SimpleNamespace(
     critic_state_hidden=SMALL["critic_state_hidden"], critic_hidden=SMALL["critic_hidden"]

@@ -16,7 +16,7 @@ import pytest
 from advisor_jax.agent.config import HParams, preset, validate_hparams
 from advisor_jax.agent.diagnostics import actor_diagnostics
 from advisor_jax.agent.update_rules import addpg_actor_targets, eq2_step
-from tests.learn.test_learner_rules import ACTIONS, ADVISOR, OBS, quadratic_q
+from tests.agent.test_learner_rules import ACTIONS, ADVISOR, OBS, quadratic_q
 
 GRAD_Q = jnp.array([[0.4, -0.4], [0.0, -0.2], [0.0, 0.0], [2.0, -2.0]])
 RMS = math.sqrt(8.36 / 4)  # 1.445683

@@ -1,6 +1,6 @@
 """The MCP + model-free building blocks (docs/baselines.md): dynamics model, random-shooting
 MPC and Eq. 8 from observations. The behaviour-cloning step is agent/imitation.py's, tested in
-tests/learn/test_imitation.py.
+tests/agent/test_imitation.py.
 
 Small shapes throughout: a (64, 64) model, a (64, 64) actor, a few hundred env steps. What
 each test would catch: a model that does not learn (or learns from rows past the valid

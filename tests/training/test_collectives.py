@@ -1,8 +1,8 @@
-"""The sharded chunk exchanges nothing between devices inside its scan (issue 18).
+"""The sharded chunk exchanges nothing between devices inside its scan.
 
 The agents of a population are independent, so a population sharded along its agent axis
 must compile to a program with no collective inside the chunk's while loop (one would be
-paid at every environment step). tests/train/collectives_worker.py compiles the chunk on 2
+paid at every environment step). tests/training/collectives_worker.py compiles the chunk on 2
 forced CPU devices and lists the optimized HLO's collectives
 (``advisor_jax.training.collectives``); the sharding and the partitioner's collectives are
 decided before the backend, so a GPU compile gets the same ones.

@@ -26,7 +26,7 @@ from advisor_jax.training import checkpoint, reporting, runlock
 from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.population import agent_keys, parse_assignments, seed_key
 from advisor_jax.training.runlock import Interrupted
-from tests.train.conftest import RUN_HP, RUN_SEEDS, TINY, run_chunks, train_tiny
+from tests.training.conftest import RUN_HP, RUN_SEEDS, TINY, run_chunks, train_tiny
 
 
 def _final_params(out):

@@ -30,7 +30,7 @@ from advisor_jax.training import checkpoint
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population
 from tests.compare import assert_same_agent
-from tests.train.conftest import (
+from tests.training.conftest import (
     agent_slice,
     assert_gate_covers_play,
     gate_function,

@@ -11,13 +11,18 @@ import sys
 import jax
 import numpy as np
 import pytest
-from runner_fakes import CONFIG_META, ENV_META, export_test_actor, rollout_like_obs
 
 from advisor_jax.contract import spec
 from advisor_jax.deploy.export import ExportError
 from advisor_jax.deploy.golden import edge_case_observations
 from advisor_jax.runner.policy import Layer, load_policy, mlp_forward
 from advisor_jax.runner.policy_meta import config_hash
+from tests.runner.runner_fakes import (
+    CONFIG_META,
+    ENV_META,
+    export_test_actor,
+    rollout_like_obs,
+)
 
 
 def test_round_trip_metadata(export_dir, policy, actor_params):

@@ -22,7 +22,7 @@ from advisor_jax.evaluation.evaluate import evaluate_population, population_eval
 from advisor_jax.training import checkpoint, reporting
 from advisor_jax.training.host_loop import population_functions, run_training
 from advisor_jax.training.population import agent_keys, build_population, parse_assignments
-from tests.train.conftest import N_CHUNKS, TINY, agent_slice, run_chunks
+from tests.training.conftest import N_CHUNKS, TINY, agent_slice, run_chunks
 
 QUICK = dataclasses.replace(
     preset("quick")[0], episodes=25, chunk_steps=500, snapshot_episodes=(10,)

@@ -1,6 +1,6 @@
 """Compiles sharded population chunks on N forced CPU devices and prints their collectives.
 
-    python tests/train/collectives_worker.py DEVICES CASE [CASE ...]
+    python tests/training/collectives_worker.py DEVICES CASE [CASE ...]
 
 CASE is ``tiny`` (the TINY population of conftest.py, 5 agents: one padding agent on 2
 devices), ``lfd`` (test_lfd.py's TINY_LFD: a gated baseline, whose chunk gate is a min over
@@ -8,7 +8,7 @@ all agents) or ``injected`` (TINY with one cross-agent reduction injected into t
 Eq. 1's ε from the population's least-trained agent, ``lax.pmin`` over the agent axis).
 Prints one JSON object, case -> the chunk's collectives (``collectives.find_collectives``,
 as dicts). XLA's CPU device count is fixed when JAX starts, hence a process of its own;
-tests/train/test_collectives.py runs it.
+tests/training/test_collectives.py runs it.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import jax  # noqa: E402
 from advisor_jax.training import train  # noqa: E402
 from advisor_jax.training.collectives import find_collectives, sharded_chunk_hlo  # noqa: E402
 from advisor_jax.training.devices import AXIS  # noqa: E402
-from tests.train.conftest import RUN_SEEDS, TINY  # noqa: E402
+from tests.training.conftest import RUN_SEEDS, TINY  # noqa: E402
 
 
 @contextlib.contextmanager
@@ -56,7 +56,7 @@ def main() -> None:
     out = {}
     for case in CASES:
         if case == "lfd":
-            from tests.train.test_lfd import TINY_LFD
+            from tests.training.test_lfd import TINY_LFD
 
             hlo = sharded_chunk_hlo(TINY_LFD, len(RUN_SEEDS), DEVICES)
         elif case == "injected":

@@ -24,7 +24,7 @@ from advisor_jax.training.program import (
     WHOLE_LOOPS,
     compiler_options,
 )
-from tests.train.conftest import TINY
+from tests.training.conftest import TINY
 
 
 @pytest.mark.parametrize(

@@ -1,6 +1,6 @@
 """A population sharded over 2 or 3 devices equals the same population on one device.
 
-The TINY population of test_integrity.py (5 agents) is trained by tests/train/devices_worker.py
+The TINY population of test_integrity.py (5 agents) is trained by tests/training/devices_worker.py
 in subprocesses with 2 and 3 forced CPU devices: 5 agents on 2 devices pads one frozen
 agent, on 3 devices one as well (6 = 2 × 3). Each agent's discrete trajectory must be
 identical to the one-device run's and its parameters within the bound of
@@ -24,7 +24,7 @@ import pytest
 from advisor_jax.training import checkpoint, reporting
 from advisor_jax.training.population import agent_keys
 from tests.compare import assert_same_agent
-from tests.train.conftest import RUN_SEEDS, TINY, agent_slice, train_tiny
+from tests.training.conftest import RUN_SEEDS, TINY, agent_slice, train_tiny
 
 WORKER = Path(__file__).with_name("devices_worker.py")
 
