@@ -35,8 +35,8 @@ import jax.numpy as jnp
 from advisor_jax.agent.config import preset
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import pad, place, shard
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 PROGRAMS = {"auto": None, "general": False, "steady": True}
 """``--program``: ``population_functions``'s ``steady`` argument."""

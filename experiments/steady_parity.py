@@ -29,8 +29,8 @@ import numpy as np
 
 from advisor_jax.agent.config import preset
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 
 def relative_difference(a, b) -> float:

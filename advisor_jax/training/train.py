@@ -122,10 +122,11 @@ class Trainer(NamedTuple):
     phases: PhaseReport | None = None  # a baseline's phases before RL (``training/prior/``)
 
 
-def learner_key(key: jax.Array) -> jax.Array:
-    """The key ``Core.init`` initialises the learner from (a program that adds state of its
-    own derives that state's key from it, leaving the core's streams as they were)."""
-    return jax.random.split(key, 3)[1]
+def init_keys(key: jax.Array) -> jax.Array:
+    """[3] keys of ``Core.init``: the state's key, the learner's and the envs'. A program
+    that adds state of its own derives that state's key from the learner's, leaving the
+    core's streams as they were."""
+    return jax.random.split(key, 3)
 
 
 def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
@@ -146,7 +147,7 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
     snapshot_at = jnp.asarray(cfg.snapshot_episodes, jnp.int32).reshape(-1)  # [K]
 
     def init(key: jax.Array) -> TrainState:
-        key, k_learner, k_env = jax.random.split(key, 3)
+        key, k_learner, k_env = init_keys(key)
         learner_state = learner.init(k_learner)
         return TrainState(
             learner=learner_state,

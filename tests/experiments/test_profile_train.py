@@ -16,8 +16,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
 import profile_train  # noqa: E402
 
 from advisor_jax.agent.config import HParams  # noqa: E402
-from advisor_jax.training.host_loop import population_functions  # noqa: E402
 from advisor_jax.training.population import agent_keys, build_population  # noqa: E402
+from advisor_jax.training.program import population_functions  # noqa: E402
 from tests.training.conftest import TINY  # noqa: E402
 
 PREFIX = "jit(chunk)/vmap()/while/body/closed_call/learn/cond/branch_1_fun/while/body/"

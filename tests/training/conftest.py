@@ -1,7 +1,7 @@
 """Shared, compiled-once fixtures for the training tests.
 
 One tiny ATD3+AfDP configuration is compiled twice per session: as a vmapped population
-(``host_loop.population_functions``, the program ``run_training`` runs) and as a single agent.
+(``program.population_functions``, the program ``run_training`` runs) and as a single agent.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from advisor_jax.agent.config import HParams, TrainConfig, parse_agent
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 TINY = TrainConfig(
     agent=parse_agent(

@@ -29,7 +29,8 @@ import jax  # noqa: E402
 
 from advisor_jax.training import reporting  # noqa: E402
 from advisor_jax.training.devices import initialize_distributed, place  # noqa: E402
-from advisor_jax.training.host_loop import population_functions, run_training  # noqa: E402
+from advisor_jax.training.host_loop import run_training  # noqa: E402
+from advisor_jax.training.program import population_functions  # noqa: E402
 from tests.training.conftest import RUN_HP, RUN_SEEDS, TINY  # noqa: E402
 
 

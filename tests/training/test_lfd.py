@@ -27,8 +27,9 @@ from advisor_jax.agent.config import (
 )
 from advisor_jax.agent.hparams import BaselineHParams, LfdHParams
 from advisor_jax.training import checkpoint
-from advisor_jax.training.host_loop import population_functions, run_training
+from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 from tests.compare import assert_same_agent
 from tests.training.conftest import (
     agent_slice,

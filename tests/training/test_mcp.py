@@ -27,10 +27,11 @@ from advisor_jax.agent.config import (
 )
 from advisor_jax.agent.hparams import BaselineHParams, McpHParams
 from advisor_jax.training import checkpoint
-from advisor_jax.training.host_loop import population_functions, run_training
+from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.trainer import make_prior_program
+from advisor_jax.training.program import population_functions
 from advisor_jax.training.run_directory import load_actor
 from tests.compare import assert_same_agent
 from tests.training.conftest import (

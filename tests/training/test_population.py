@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import envs
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys
+from advisor_jax.training.program import population_functions
 from tests.compare import assert_same_agent
 from tests.training.conftest import GOOD, TINY, agent_slice, run_chunks
 

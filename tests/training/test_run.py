@@ -20,8 +20,9 @@ from advisor_jax.agent.config import (
 )
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.training import checkpoint, reporting
-from advisor_jax.training.host_loop import population_functions, run_training
+from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.population import agent_keys, build_population, parse_assignments
+from advisor_jax.training.program import population_functions
 from tests.training.conftest import N_CHUNKS, TINY, agent_slice, run_chunks
 
 QUICK = dataclasses.replace(

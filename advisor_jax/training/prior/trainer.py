@@ -38,7 +38,7 @@ from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.lfd import lfd_schedule
 from advisor_jax.training.prior.mcp import mcp_schedule
 from advisor_jax.training.state import TrainState
-from advisor_jax.training.train import PhaseReport, Trainer, learner_key, make_core
+from advisor_jax.training.train import PhaseReport, Trainer, init_keys, make_core
 
 SCHEDULES = {"lfd": lfd_schedule, "mcp": mcp_schedule}
 """``BaselineConfig.kind`` -> (cfg, learner, actor, env) -> its ``phases.Schedule``."""
@@ -53,6 +53,8 @@ class PriorState(TrainState):
 
 
 class PriorProgram(NamedTuple):
+    """A baseline's program: its trainer, its schedule, and how a population runs it."""
+
     trainer: Trainer
     """``chunk(state, hp, first_step, gate=None)``: ``gate`` is ``phases.chunk_gate`` of the
     population; None computes it from this agent alone (exact when it runs alone; under a
@@ -90,7 +92,7 @@ def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> Pri
     def init(key: jax.Array) -> PriorState:
         state = core.init(key)
         # The phases' own key leaves the core's streams as they were.
-        data = phases.init_state(schedule, state.learner, jax.random.fold_in(learner_key(key), 1))
+        data = phases.init_state(schedule, state.learner, jax.random.fold_in(init_keys(key)[1], 1))
         fields = {f.name: getattr(state, f.name) for f in dataclasses.fields(TrainState)}
         return PriorState(**fields, prior=data)
 
