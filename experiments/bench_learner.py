@@ -33,7 +33,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.agent import networks
 from advisor_jax.agent.config import HParams, parse_agent
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
@@ -42,6 +41,7 @@ from advisor_jax.bench import measure, writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay, make_update_loop
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.program import twin_inputs_per_critic
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
@@ -113,7 +113,8 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
 
     from advisor_jax.agent.networks import apply_critics, make_critic
 
-    learner = make_learner(cfg)
+    per_critic = twin_inputs_per_critic()
+    learner = make_learner(cfg, inputs_per_critic=per_critic)
     hp = HParams()
     critic = make_critic(cfg, cfg.precision)
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
@@ -126,7 +127,7 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     )
 
     def critic_loss(params, batch):
-        q = apply_critics(critic, params, batch.obs, batch.action)
+        q = apply_critics(critic, params, batch.obs, batch.action, per_critic)
         return jnp.mean(jnp.square(q - batch.reward))
 
     pieces = {
@@ -174,17 +175,7 @@ def main() -> None:
                         help="time the update loop as the latency-bound training program "
                              "compiles it (make_update_loop's steady); not passed to "
                              "--reference")  # fmt: skip
-    parser.add_argument("--bias-in-gemm", action="store_true",
-                        help="hidden layers add their bias inside the matmul "
-                             "(networks.BIAS_IN_GEMM); not passed to --reference")  # fmt: skip
-    parser.add_argument("--width-align", type=int, default=1, metavar="N",
-                        help="hidden widths computed padded to a multiple of N "
-                             "(networks.WIDTH_ALIGN); not passed to --reference")  # fmt: skip
     args = parser.parse_args()
-    networks.BIAS_IN_GEMM = networks.BIAS_IN_GEMM or args.bias_in_gemm
-    if args.width_align < 1:
-        parser.error(f"--width-align must be ≥ 1, got {args.width_align}")
-    networks.WIDTH_ALIGN = args.width_align
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
@@ -238,7 +229,6 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        bias_in_gemm=networks.BIAS_IN_GEMM, width_align=networks.WIDTH_ALIGN,
         latency_bound=args.latency_bound, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
@@ -257,14 +247,7 @@ def main() -> None:
         "",
         f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
-        "updates per jitted call (replay sampling + critic step + delayed actor step)"
-        + (
-            "; hidden layers with the bias in the matmul (networks.BIAS_IN_GEMM)."
-            if networks.BIAS_IN_GEMM
-            else f"; hidden widths padded to multiples of {networks.WIDTH_ALIGN} (WIDTH_ALIGN)."
-            if networks.WIDTH_ALIGN > 1
-            else "."
-        ),
+        "updates per jitted call (replay sampling + critic step + delayed actor step).",
         "",
         f"Device: {device}, {result['date']}. Ceilings measured in the same process: "
         + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
@@ -282,10 +265,7 @@ def main() -> None:
         }
         lines += [
             "",
-            f"Against `{args.reference}` (run in the same command, same options"
-            + (", without --bias-in-gemm" if args.bias_in_gemm else "")
-            + (", without --width-align" if args.width_align > 1 else "")
-            + "):",
+            f"Against `{args.reference}` (run in the same command, same options):",
             "",
             *writing.markdown_table(
                 ("precision", "agents", "reference agent-updates/s", "this tree", "speed-up"),

@@ -33,7 +33,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as advisor-jax-car sets it
 import argparse  # noqa: E402
 import tempfile  # noqa: E402
 import timeit  # noqa: E402
-import types  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -138,7 +137,6 @@ def main() -> None:
     beams = [scan_to_robot_frame(s.points) + (s.points[:, 2] > 0,) for s in scans]
     dropped = [~valid for *_, valid in beams]
     table = zone_table(cfg.mount_yaw_deg)
-    generic_np = types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if k[0] != "_"})
 
     def obs_mlp(b: ObservationBuilder):
         return lambda i: policy.act(b.build(scans[i % 64], poses[i]))
@@ -156,7 +154,7 @@ def main() -> None:
             zone_minima_mm(scans[i % 64].points, dropped[i % 64], table), 1.0, 0.22
         ),
         "zones only: generic [200, 16] path": lambda i: reduce_to_zones(
-            *beams[i % 64], range_offset=0.22, xp=generic_np
+            *beams[i % 64], range_offset=0.22
         ),
     }
     probe = np.random.default_rng(0).random(200)
@@ -239,8 +237,8 @@ def main() -> None:
         "the reduction alone: the car's (`zone_minima_mm` over its 1/64° zone table, then",
         "`free_distances`) against `zones.reduce_to_zones`' generic [beams, 16]",
         "membership-matrix path (the one the simulator runs under jax.numpy) on the same",
-        "scans; they give the same bits except for a reading exactly on a zone boundary,",
-        "where the car follows spec.py's rule exactly (tests/runner).",
+        "scans; they give the same bits on every reading the RPLIDAR can give",
+        "(tests/contract/test_zones.py).",
         "",
         "A virtual machine's speed can change by 2x from one minute to the next (the speed",
         "probes above; README: runs of this benchmark on one day), and the rows run one after",

@@ -35,8 +35,8 @@ from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import pad, place, shard
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 PROGRAMS = {"auto": None, "general": False, "steady": True}
 """``--program``: ``population_functions``'s ``steady`` argument."""
@@ -145,7 +145,7 @@ def main() -> None:
         default="auto",
         choices=sorted(PROGRAMS),
         help="the chunk's program: auto (as training picks it: the latency-bound program "
-        "for populations of at most host_loop.LATENCY_BOUND_AGENTS per GPU), general (a "
+        "for populations of at most program.LATENCY_BOUND_AGENTS per GPU), general (a "
         "lax.cond per step for warm-up and the TD3 delay, XLA's scheduling) or steady (the "
         "latency-bound program: no conditional in the loop, overlapping kernels)",
     )

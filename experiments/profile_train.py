@@ -39,8 +39,8 @@ from advisor_jax.bench import measure, writing
 from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import place
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 # Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
 PARTS = (

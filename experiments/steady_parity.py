@@ -2,7 +2,7 @@
 
 On GPUs the training chunk runs its *steady* program once past warm-up: the same steps with
 no ``lax.cond`` inside, compiled with overlapping kernels and whole-loop CUDA graphs
-(``training.train``, ``agent.compiler_options``). The two programs fuse and order their
+(``training.train``, ``training.program``). The two programs fuse and order their
 float reductions differently, so they cannot agree bit for bit, and Adam turns tiny
 gradient differences into step-size ones. So each chunk after warm-up is run from one state
 S three ways: the general program, the steady program, and the general program on S with
@@ -29,8 +29,8 @@ import numpy as np
 from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 
 def relative_difference(a, b) -> float:

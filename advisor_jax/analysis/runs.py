@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from advisor_jax.agent.config import HPARAM_NAMES, AgentConfig, HParams, TrainConfig, preset
+from advisor_jax.agent.config import HPARAM_NAMES, AgentConfig, TrainConfig, preset
+from advisor_jax.agent.hparams import HPARAM_DEFAULTS
+from advisor_jax.agent.settings import flat_items
 
 AGENT_FIELDS = (
     "actor_hidden",
@@ -225,10 +227,9 @@ def _setting(value):
 def settings_of(summary: dict, row: dict) -> dict:
     """Everything that changes what one agent learns: every hyperparameter (a field an older
     run.json lacks: ``HParams``'s default, what that run trained with) and static setting."""
-    before = HParams()
     config = summary["config"]
     agent_defaults, train_defaults = AgentConfig(), TrainConfig()
-    out = {n: _setting(float(row.get(n, getattr(before, n)))) for n in HPARAM_NAMES}
+    out = {n: _setting(float(row.get(n, HPARAM_DEFAULTS[n]))) for n in HPARAM_NAMES}
     for field in AGENT_FIELDS:
         out[field] = _setting(config["agent"].get(field, getattr(agent_defaults, field)))
     for field in TRAIN_FIELDS:
@@ -239,10 +240,11 @@ def settings_of(summary: dict, row: dict) -> dict:
 def preset_differences(preset_name: str, agent: str, settings: dict) -> dict:
     """The settings in which an agent differs from ``preset_name``'s for its type."""
     static, hp = preset(preset_name, agent)
+    hp_values = {**HPARAM_DEFAULTS, **flat_items(hp)}
     out = {}
     for name, value in settings.items():
         if name in HPARAM_NAMES:
-            default = getattr(hp, name)
+            default = float(hp_values[name])
         elif name in AGENT_FIELDS:
             default = _setting(dataclasses.asdict(static.agent)[name])
         else:

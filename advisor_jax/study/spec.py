@@ -50,8 +50,10 @@ from pathlib import Path
 
 from advisor_jax.agent.baselines import check_baseline_hparams
 from advisor_jax.agent.config import HPARAM_NAMES, preset
-from advisor_jax.cli.train import TrainArgs, build_run
+from advisor_jax.agent.hparams import HPARAM_DEFAULTS
+from advisor_jax.agent.settings import flat_items
 from advisor_jax.training.population import build_population
+from advisor_jax.training.request import TrainArgs, build_run
 
 STATIC = {  # name: type; each a TrainArgs option (advisor-jax train --NAME)
     "episodes": int,
@@ -342,7 +344,7 @@ def _groups(study: Study, agent: str, static: dict, hp: dict, grid: dict) -> lis
             cfg, base = preset(study.preset, agent)
         except ValueError as e:
             raise StudyError(f"{label}: {e}") from None
-        known = {n: float(getattr(base, n)) for n in HPARAM_NAMES}
+        known = {**HPARAM_DEFAULTS, **{n: float(v) for n, v in flat_items(base).items()}}
         for fields in (vars(cfg), vars(cfg.agent), static_values):
             known |= {k: float(v) for k, v in fields.items() if isinstance(v, int | float)}
         fixed = resolve(hp, {k: v for k, v in known.items() if k not in hp}, f"{label}: [hp]")

@@ -22,6 +22,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 import envs
+from advisor_jax.agent.hparams import rl_hparams
 from advisor_jax.agent.selector import expected_max_firing_rate
 from advisor_jax.fileio import atomic_write_bytes, atomic_write_npz
 from advisor_jax.stats import format_interval, t_interval
@@ -119,6 +120,7 @@ def episode_metrics(state, hp, n_total: int) -> dict[str, np.ndarray]:
     played = outcome > 0
     safe = np.maximum(length, 1)
     episode = np.arange(n_total)[None, :]
+    hp = rl_hparams(hp)
     eps_start = np.asarray(hp.eps_start)[:, None]
     eps_decay = np.asarray(hp.eps_decay)[:, None]
     n_t = np.asarray(hp.advisor_episodes)[:, None]

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from advisor_jax.agent.config import HPARAM_NAMES, preset
+from advisor_jax.agent.config import preset
+from advisor_jax.agent.settings import flat_items, replace_flat
 
 
 def write_run(root: Path, name: str, agent: str, seeds, success, *, preset_name="stable",
@@ -20,8 +21,8 @@ def write_run(root: Path, name: str, agent: str, seeds, success, *, preset_name=
     cfg, base = preset(preset_name, agent)
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, **static),
                               episodes=episodes or cfg.episodes)  # fmt: skip
-    base = base.replace(**(hp or {}))
-    rows = [{"seed": s, "index": i, **{n: float(getattr(base, n)) for n in HPARAM_NAMES}}
+    base = replace_flat(base, **(hp or {}))
+    rows = [{"seed": s, "index": i, **{n: float(v) for n, v in flat_items(base).items()}}
             for i, s in enumerate(seeds)]  # fmt: skip
 
     def evaluation(values):

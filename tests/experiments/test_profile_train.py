@@ -10,10 +10,10 @@ import jax.numpy as jnp
 import pytest
 
 from advisor_jax.agent.config import HParams
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 from tests.experiments.scripts import load_script
-from tests.train.conftest import TINY
+from tests.training.conftest import TINY
 
 profile_train = load_script("profile_train")
 

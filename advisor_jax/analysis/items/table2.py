@@ -17,7 +17,7 @@ import numpy as np
 
 from advisor_jax import stats
 from advisor_jax.agent.baselines import prior_episodes
-from advisor_jax.agent.config import HParams, train_config_from_dict
+from advisor_jax.agent.config import hparams_from_row, train_config_from_dict
 from advisor_jax.analysis.items.base import (
     Item,
     cell,
@@ -88,9 +88,7 @@ def prior(point: Point) -> float | None:
     agent = train_config_from_dict(run.config).agent
     if agent.baseline is None:
         return None
-    names = set(HParams.__dataclass_fields__)
-    hp = HParams(**{k: v for k, v in point.settings.items() if k in names})
-    return float(prior_episodes(agent.baseline, hp)[0])
+    return float(prior_episodes(agent.baseline, hparams_from_row(agent, point.settings))[0])
 
 
 def type_rows(points: list[Point]) -> tuple[list[dict], list[str]]:
