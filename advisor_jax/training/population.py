@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -18,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax.agent.config import HPARAM_NAMES, HParams, validate_hparams
+from advisor_jax.training.limits import check_agents
 
 SEED_MAX = 2**64 - 1
 """Seeds are 64-bit: ``seed_key`` puts both 32-bit halves into the threefry key."""
@@ -27,7 +29,8 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
     """``["beta=0.01,0.1", "gamma=0.9"]`` → ``{"beta": [0.01, 0.1], "gamma": [0.9]}``.
 
     A name given twice is refused (naming ``option`` and both items) rather than silently
-    keeping the last one.
+    keeping the last one, and so is a value listed twice for one name (``beta=0.1,0.1``
+    would train identical agents as two grid points).
     """
     grid: dict[str, list[float]] = {}
     given: dict[str, str] = {}
@@ -49,6 +52,12 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
             grid[name] = [float(v) for v in values.split(",")]
         except ValueError:
             raise ValueError(f"non-numeric value in {item!r}") from None
+        twice = sorted({v for v in grid[name] if grid[name].count(v) > 1})
+        if twice:
+            raise ValueError(
+                f"{option} {item!r} lists {', '.join(f'{v:g}' for v in twice)} more than once: "
+                "those grid points would train identical agents; give each value once"
+            )
     return grid
 
 
@@ -62,13 +71,18 @@ def build_population(
     """
     if not seeds:
         raise ValueError("need at least one seed")
-    for seed in seeds:
-        check_seed(seed)
     for name, values in grid.items():
         if name not in HPARAM_NAMES:
             raise ValueError(f"unknown hyperparameter {name!r}")
         if len(values) == 0:
             raise ValueError(f"empty value list for {name!r}")
+        if len(set(map(float, values))) != len(values):
+            raise ValueError(f"a value of {name!r} is listed twice in the grid: {list(values)}")
+    check_agents(len(seeds) * math.prod(len(v) for v in grid.values()))
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"a seed is listed twice: {list(seeds)}")
+    for seed in seeds:
+        check_seed(seed)
     names = list(grid)
     rows = []
     for values in itertools.product(*(grid[n] for n in names)):
