@@ -10,6 +10,9 @@ when they fail.
   another file).
 * ``create_exclusive``: a new file that must not exist yet (``O_CREAT | O_EXCL``, which
   also refuses a dangling link): never over a file that this run did not create.
+* ``atomic_write_directory``: a set of files that is complete or absent (an export): written
+  into a temporary directory beside the destination, verified, then renamed to it; the
+  destination must not exist or be an empty directory.
 
 Every failure is an ``OSError`` whose message names the file and the reason, e.g. "cannot
 write runs/x/metrics.npz: No space left on device", so that the command line prints one
@@ -21,8 +24,10 @@ from __future__ import annotations
 import io
 import json
 import os
+import shutil
 import stat
 import tempfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -157,9 +162,43 @@ def create_exclusive(path: str | os.PathLike) -> IO[str]:
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o644)
     except FileExistsError:
-        raise OSError(
+        raise FileExistsError(
             f"{os.fspath(path)} exists already; it is never overwritten: choose another path"
         ) from None
     except OSError as e:
         raise _cannot("create", path, e) from e
     return os.fdopen(fd, "w", encoding="utf-8", buffering=1)
+
+
+def atomic_write_directory(
+    path: str | os.PathLike,
+    files: Mapping[str, bytes],
+    verify: Callable[[str], Any] | None = None,
+) -> Path:
+    """Writes ``files`` (name -> bytes) as the new directory ``path``: into a temporary
+    directory beside it, fsynced, checked by ``verify(temporary path)`` if given, then
+    renamed to ``path`` (which must not exist, or be an empty directory: rename(2) replaces
+    only those). On any failure nothing is left behind."""
+    path = Path(path)
+    try:
+        path.absolute().parent.mkdir(parents=True, exist_ok=True)
+        tmp = tempfile.mkdtemp(
+            prefix=f".{path.name}.", suffix=".partial", dir=path.absolute().parent
+        )
+    except OSError as e:
+        raise _cannot("write", path, e) from e
+    try:
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; give the usual mode
+        for name, data in files.items():
+            atomic_write_bytes(os.path.join(tmp, name), data)
+        if verify is not None:
+            verify(tmp)
+        try:
+            os.rename(tmp, path)
+        except OSError as e:
+            raise _cannot("write", path, e) from e
+        _fsync_dir(path.absolute().parent)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
