@@ -151,7 +151,8 @@ def run_training(
     if resume and not (out_dir / "run.json").exists():
         raise ValueError(f"nothing to resume: {out_dir / 'run.json'} does not exist")
     lock = runlock.exclusive(out_dir) if is_writer() else contextlib.nullcontext()
-    with lock, interrupts.stop_requests(console.print) as stop:
+    announce = lambda line: console.print(line, soft_wrap=True, highlight=False)  # noqa: E731
+    with lock, interrupts.stop_requests(announce) as stop:
         return _train_locked(
             cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
             checkpoint_every, resume, progress, console, meta, program, placement, eval_from,

@@ -51,10 +51,7 @@ class StopRequest:
         self.signum = signum
         if self._announce is not None:
             name = signal.Signals(signum).name
-            self._announce(
-                f"{name}: stopping after the current step, with a checkpoint (kill -9 stops at "
-                "once and loses the work since the last checkpoint)"
-            )
+            self._announce(f"{name}: stopping after the current step, with a checkpoint")
 
     @property
     def requested(self) -> bool:
