@@ -90,8 +90,9 @@ def evaluate(
     """
     import jax
 
-    if episodes <= 0:
-        raise ValueError(f"--episodes must be a positive integer, got {episodes}")
+    from advisor_jax.training.limits import check_eval_episodes
+
+    check_eval_episodes(episodes, 1, "--episodes")
     env = _envs().make_env(arena)
     from advisor_jax.cli.policy_spec import resolve_policy
     from advisor_jax.evaluation.evaluate import make_evaluate, summary
