@@ -274,12 +274,6 @@ def drive(args: argparse.Namespace) -> int:
     builder = ObservationBuilder(obs_cfg, tuple(args.goal))
     collision = _default(args.collision_distance, policy.env, "T_c", None)
     rate = args.rate if args.rate is not None else 1.0 / policy.dt
-    if abs(rate * policy.dt - 1.0) > 0.01:
-        print(
-            f"{PROG}: warning: rate {rate:g} Hz differs from the training rate "
-            f"{1 / policy.dt:g} Hz; the velocity inputs will not match",
-            file=sys.stderr,
-        )
     loop_cfg = LoopConfig(
         rate_hz=rate,
         max_scan_age=args.max_scan_age,
@@ -292,6 +286,12 @@ def drive(args: argparse.Namespace) -> int:
         warm_up=args.warm_up,
     )
     controller = Controller(policy, builder, drive_model, loop_cfg)
+    if abs(rate * policy.dt - 1.0) > 0.01:
+        print(
+            f"{PROG}: warning: rate {rate:g} Hz differs from the training rate "
+            f"{1 / policy.dt:g} Hz; the velocity inputs will not match",
+            file=sys.stderr,
+        )
     if args.dry_run:
         motor = hardware.PrintMotorDriver()
     elif args.motor:
