@@ -273,6 +273,11 @@ def drive(args: argparse.Namespace) -> int:
         )
     builder = ObservationBuilder(obs_cfg, tuple(args.goal))
     collision = _default(args.collision_distance, policy.env, "T_c", None)
+    if args.collision_distance is None and collision is not None and not collision >= 0:
+        raise ValueError(  # only the operator may turn the collision stop off, never a file
+            f"{args.policy_dir}: env.T_c = {collision:g} in policy.json would turn the "
+            "collision stop off; give --collision-distance to choose it on the car's side"
+        )
     rate = args.rate if args.rate is not None else 1.0 / policy.dt
     loop_cfg = LoopConfig(
         rate_hz=rate,
@@ -298,15 +303,18 @@ def drive(args: argparse.Namespace) -> int:
         motor = hardware.load_motor_driver(args.motor)
     else:
         raise ValueError("no motor driver: pass --motor MODULE:FACTORY, or --dry-run")
-    log = cyclelog.new_log(args.log, PROG)  # before any hardware: a taken name stops nothing
-    log_path = log.path
-    scans = poses = None
+    if args.log is not None and os.path.lexists(args.log):  # before any hardware is opened
+        raise FileExistsError(f"{args.log} exists already; it is never overwritten: choose "
+                              "another --log")  # fmt: skip
+    log = log_path = scans = poses = None
     previous_handler = signal.signal(signal.SIGTERM, _raise_interrupt)  # systemd/kill → stop
     try:
-        log.write(log_header(controller, policy, argv=sys.argv))
         motor.stop()
         scans = hardware.RplidarScanSource(args.lidar_port, baudrate=args.lidar_baud)
         poses = hardware.UdpPoseSource(host, port)
+        log = cyclelog.new_log(args.log, PROG)  # a new file, never over an existing one
+        log_path = log.path
+        log.write(log_header(controller, policy, argv=sys.argv))
         print(
             f"{PROG}: driving to ({args.goal[0]:g}, {args.goal[1]:g}) at {rate:g} Hz within "
             f"the {limits.describe()}; log {log_path}; Ctrl-C stops",
@@ -321,7 +329,8 @@ def drive(args: argparse.Namespace) -> int:
         with signals_ignored():
             signal.signal(signal.SIGTERM, previous_handler)
             _shutdown(motor, scans, poses)
-            log.close()
+            if log is not None:
+                log.close()
     stops = ", ".join(f"{k} x{v}" for k, v in summary.stops.items()) or "none"
     print(
         f"{PROG}: ended ({summary.end}) after {summary.cycles} cycles; stops: {stops}; "

@@ -170,14 +170,7 @@ def _train_locked(
     reported is of the real agents only (``real``), gathered to the host. ``stop`` notes
     signals; they take effect between chunks (``interrupts``)."""
     run_file = out_dir / "run.json"
-    if run_file.exists() and not resume:
-        raise ValueError(
-            f"{out_dir} already holds a run; pass --resume to continue it or choose another --out"
-        )
-    if resume:
-        run_state.check_run_entries(out_dir)
-    else:
-        run_state.check_new_directory(out_dir)
+    run_state.check_directory(out_dir, resume)
     trainer, init_fn, chunk_fn = program
     keys = agent_keys([a["seed"] for a in agents])
     n_agents, n_total = len(agents), cfg.episodes
@@ -220,21 +213,11 @@ def _train_locked(
     step, state, seconds_before = 0, None, 0.0
     log_path = out_dir / "train_log.jsonl"
     if resume:
-        saved = run_state.read_run_json(run_file)
-        current = json.loads(json.dumps({"config": summary["config"], "agents": agents}))
-        differences = run_directory.differences({k: saved.get(k) for k in current}, current)
-        if differences:
-            raise ValueError(
-                f"cannot resume {out_dir}: its config or agents differ from these: "
-                + "; ".join(differences)
-            )
+        saved = run_state.resume_record(run_file, summary)  # the same run, or ValueError
         if saved["status"] == "finished":
             console.print(f"{out_dir} is a finished run: nothing to resume (its files are as "
                           "they were)")  # fmt: skip
             return saved
-        if "identity" not in saved:  # started by a version without identities: keep it so
-            del summary["identity"]
-        summary["created"] = saved.get("created", summary["created"])
         seconds_before = saved.get("train_seconds") or 0.0
         if checkpoint.has_checkpoints(out_dir / "checkpoints"):
             abstract = jax.eval_shape(jax.vmap(trainer.init), keys)  # the real agents

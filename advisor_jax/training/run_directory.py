@@ -12,7 +12,7 @@ import numpy as np
 from advisor_jax.agent.config import TrainConfig, train_config_from_dict
 from advisor_jax.fileio import atomic_write_text
 from advisor_jax.training import checkpoint, reporting
-from advisor_jax.training.run_state import read_run_json
+from advisor_jax.training.run_state import differences, read_run_json  # noqa: F401
 
 
 def load_run(run_dir: str | Path) -> tuple[TrainConfig, dict]:
@@ -96,28 +96,6 @@ def reevaluate(
     diverged = np.zeros(len(summary["agents"]), bool)
     diverged[summary.get("diverged", [])] = True
     return evaluate_population(evaluators, actor, key, diverged)
-
-
-def differences(saved, current, path: str = "") -> list[str]:
-    """Where two JSON values differ: 'config.episodes: run.json has 60, these options give
-    25', one entry per differing leaf (the first 5, then a count)."""
-    out: list[str] = []
-    if isinstance(saved, dict) and isinstance(current, dict):
-        for key in sorted(set(saved) | set(current)):
-            where = f"{path}.{key}" if path else key
-            if key not in saved or key not in current:
-                side = "run.json lacks it" if key not in saved else "these options lack it"
-                out.append(f"{where}: {side}")
-            else:
-                out += differences(saved[key], current[key], where)
-    elif isinstance(saved, list) and isinstance(current, list) and len(saved) == len(current):
-        for i, (a, b) in enumerate(zip(saved, current, strict=True)):
-            out += differences(a, b, f"{path}[{i}]")
-    elif saved != current:
-        out.append(f"{path}: run.json has {saved!r}, these options give {current!r}")
-    if not path and len(out) > 5:
-        out = out[:5] + [f"and {len(out) - 5} more"]
-    return out
 
 
 def trim_log(log_path: Path, step: int, n_agents: int) -> None:

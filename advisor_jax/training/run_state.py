@@ -139,6 +139,60 @@ def _kind(value: Any) -> str:
     return "missing" if value is None else f"a JSON {type(value).__name__} ({value!r:.40})"
 
 
+def check_directory(out_dir: Path, resume: bool) -> None:
+    """A run's directory before it writes anything: a new run's must be empty (``.lock``
+    aside), a resumed run's files must not be links (``check_run_entries``)."""
+    if resume:
+        check_run_entries(out_dir)
+        return
+    if (out_dir / "run.json").exists():
+        raise ValueError(
+            f"{out_dir} already holds a run; pass --resume to continue it or choose another --out"
+        )
+    check_new_directory(out_dir)
+
+
+def resume_record(run_file: Path, summary: dict) -> dict:
+    """run.json of the run being resumed, checked (``read_run_json``) and compared with the
+    ``summary`` these options give: ValueError naming the fields that differ. Carries over
+    into ``summary`` what the run keeps (its creation time; no identity if it was started
+    by a version that recorded none)."""
+    saved = read_run_json(run_file)
+    current = json.loads(json.dumps({"config": summary["config"], "agents": summary["agents"]}))
+    found = differences({k: saved.get(k) for k in current}, current)
+    if found:
+        raise ValueError(
+            f"cannot resume {run_file.parent}: its config or agents differ from these: "
+            + "; ".join(found)
+        )
+    if "identity" not in saved:
+        summary.pop("identity", None)
+    summary["created"] = saved.get("created", summary["created"])
+    return saved
+
+
+def differences(saved, current, path: str = "") -> list[str]:
+    """Where two JSON values differ: 'config.episodes: run.json has 60, these options give
+    25', one entry per differing leaf (the first 5, then a count)."""
+    out: list[str] = []
+    if isinstance(saved, dict) and isinstance(current, dict):
+        for key in sorted(set(saved) | set(current)):
+            where = f"{path}.{key}" if path else key
+            if key not in saved or key not in current:
+                side = "run.json lacks it" if key not in saved else "these options lack it"
+                out.append(f"{where}: {side}")
+            else:
+                out += differences(saved[key], current[key], where)
+    elif isinstance(saved, list) and isinstance(current, list) and len(saved) == len(current):
+        for i, (a, b) in enumerate(zip(saved, current, strict=True)):
+            out += differences(a, b, f"{path}[{i}]")
+    elif saved != current:
+        out.append(f"{path}: run.json has {saved!r}, these options give {current!r}")
+    if not path and len(out) > 5:
+        out = out[:5] + [f"and {len(out) - 5} more"]
+    return out
+
+
 def check_new_directory(out_dir: Path) -> None:
     """A new run's directory must be empty but for a lock file: anything else belongs to
     another run (a killed run whose run.json was removed) or to someone else."""

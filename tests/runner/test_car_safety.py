@@ -114,6 +114,24 @@ def test_the_car_prints_its_limits_and_takes_them_from_its_own_side(
     assert "unknown key(s) v_max" in error_line(capsys)
 
 
+def test_a_policy_file_cannot_turn_the_collision_stop_off(export_copy, tmp_path, capsys):
+    forge(export_copy, env={"T_c": -1.0})
+    assert drive(export_copy, tmp_path / "log.jsonl") == 2
+    assert "env.T_c = -1 in policy.json would turn the collision stop off" in error_line(capsys)
+
+
+def test_evaluate_refuses_an_export_made_for_other_scales(export_copy):
+    from types import SimpleNamespace
+
+    from advisor_jax.cli.policy_spec import resolve_policy
+
+    env = SimpleNamespace(config=SimpleNamespace(v_max=1.0, omega_max=2.0, dt=0.05))
+    resolve_policy(str(export_copy), env)  # the export's own scales: evaluated
+    forge(export_copy, control={"v_max": 5.0}, scale={"V": 5.0}, env={"v_max": 5.0})
+    with pytest.raises(ValueError, match="exported with v_max=5 m/s but the arena uses 1"):
+        resolve_policy(str(export_copy), env)
+
+
 def test_the_loop_stops_rather_than_command_beyond_the_limits(policy):
     class Faster:  # a policy object asking for 5 m/s at full scale
         v_max, omega_max, bounds = 5.0, policy.omega_max, policy.bounds
