@@ -83,25 +83,23 @@ def _write_failure(what: Path, e: BaseException) -> OSError:
 @contextlib.contextmanager
 def _quiet_orbax():
     """Keeps orbax's own error logs (absl, from its background threads) off the terminal
-    while it saves: a failure reaches the caller as one exception, worded here. After a
-    failure, its threads may still report on an event loop already closed; those echoes
-    are dropped too (``_drop_closed_loop_echoes``)."""
+    while it saves: a failure reaches the caller as one exception, worded here. When a
+    write fails, its threads also report on event loops already closed, during the save
+    and after it; those echoes are dropped (``_drop_closed_loop_echoes``)."""
+    _drop_closed_loop_echoes()
     logger = logging.getLogger("absl")
     level = logger.level
     logger.setLevel(logging.CRITICAL)
     try:
         yield
-    except Exception:
-        _drop_closed_loop_echoes()
-        raise
     finally:
         logger.setLevel(level)
 
 
 def _drop_closed_loop_echoes() -> None:
     """Installs (once) an unraisable-exception hook that drops orbax's "Event loop is closed"
-    RuntimeErrors, raised in TensorStore callbacks after a failed save (61 tracebacks on a
-    full disk), and passes everything else on."""
+    RuntimeErrors, raised in TensorStore callbacks when a save fails (61 tracebacks on a
+    full disk), and passes every other unraisable exception on."""
     previous = sys.unraisablehook
     if getattr(previous, "_drops_closed_loop_echoes", False):
         return
