@@ -10,6 +10,8 @@ when they fail.
   another file).
 * ``create_exclusive``: a new file that must not exist yet (``O_CREAT | O_EXCL``, which
   also refuses a dangling link): never over a file that this run did not create.
+  ``atomic_create_bytes``: the same for a file written whole (a temporary file, then
+  ``link``ed to its name, which fails if anything is there).
 * ``atomic_write_directory``: a set of files that is complete or absent (an export): written
   into a temporary directory beside the destination, verified, then renamed to it; the
   destination must not exist or be an empty directory.
@@ -41,9 +43,9 @@ def _cannot(verb: str, path: str | os.PathLike, e: OSError) -> OSError:
     return err
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Writes ``data`` to ``path`` atomically; creates the parent directory."""
-    path = Path(path)
+def _write_temporary(path: Path, data: bytes) -> str:
+    """``data`` in a new, fsynced temporary file beside ``path`` (created with its parent
+    directories); returns the temporary file's name. Errors name ``path``."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -57,14 +59,47 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
     except OSError as e:  # a full disk, a quota, a read-only remount: name the file
         Path(tmp).unlink(missing_ok=True)
         raise _cannot("write", path, e) from e
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    return tmp
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Writes ``data`` to ``path`` atomically; creates the parent directory."""
+    path = Path(path)
+    tmp = _write_temporary(path, data)
+    try:
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    except OSError as e:
+        Path(tmp).unlink(missing_ok=True)
+        raise _cannot("write", path, e) from e
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_create_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Writes ``data`` to the new file ``path``, atomically; FileExistsError naming it if
+    anything (a file, a link) is there already."""
+    path = Path(path)
+    if os.path.lexists(path):
+        raise FileExistsError(f"{path} exists already; it is never overwritten: choose another")
+    tmp = _write_temporary(path, data)
+    try:
+        os.link(tmp, path)  # fails, like O_EXCL, if the name was taken meanwhile
+    except FileExistsError:
+        raise FileExistsError(f"{path} exists already; it is never overwritten") from None
+    except OSError as e:
+        raise _cannot("write", path, e) from e
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    _fsync_dir(path.parent)
     return path
 
 

@@ -34,7 +34,7 @@ from rich.text import Text
 
 from advisor_jax.cli.export import ExportArgs, export_command
 from advisor_jax.cli.train import TrainArgs, train_command
-from advisor_jax.fileio import atomic_write_text
+from advisor_jax.fileio import atomic_create_bytes
 from advisor_jax.runner.errors import RunnerError
 
 
@@ -55,7 +55,7 @@ def arena(
 
     Args:
       name: Arena: training, validation, physical or procedural.
-      xml: Output file.
+      xml: Output file, a new one (an existing file is never overwritten).
       seed: Procedural arena only: write the layout of the first episode of
         env.reset(key of seed), as drawn in training and evaluation.
     """
@@ -64,7 +64,7 @@ def arena(
     env = _envs().make_env(name)
     boxes = env.layout_boxes(seed_key(seed)) if env.procedural else None
     text = env.xml(boxes)
-    atomic_write_text(xml, text)  # OSError: 'cannot write <xml>: <why>'
+    atomic_create_bytes(xml, text.encode())  # a new file; OSError: 'cannot write <xml>: <why>'
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
 
 

@@ -100,3 +100,15 @@ def test_final_parameters_are_never_saved_through_a_left_link(tmp_path):
     assert sorted(os.listdir(elsewhere)) == ["keep.txt"]
     assert (elsewhere / "keep.txt").read_text() == OUTSIDE
     np.testing.assert_array_equal(checkpoint.load_tree(params)["w"], np.arange(3.0))
+
+
+def test_arena_xml_never_overwrites_a_file(tmp_path, capsys):
+    from advisor_jax.cli.main import main as cli_main
+
+    target = tmp_path / "training.xml"
+    target.write_text(OUTSIDE)
+    with pytest.raises(SystemExit) as info:
+        cli_main(["arena", "training", "--xml", str(target)])
+    assert info.value.code == 2
+    assert "training.xml exists already; it is never overwritten" in capsys.readouterr().err
+    assert target.read_text() == OUTSIDE and os.listdir(tmp_path) == ["training.xml"]
