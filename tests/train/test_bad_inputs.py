@@ -30,6 +30,7 @@ def one_error_line(capsys) -> str:
 
 # run.json that is not a run record: resume, export, evaluate, reevaluate --------------
 
+
 def _edit(field, value):
     return lambda record: {**record, field: value}
 
@@ -212,4 +213,18 @@ def test_a_checksum_file_nested_too_deeply_is_one_line(straight_run, tmp_path):
     shutil.copytree(straight_run / "params", params)
     (params / checkpoint.CHECKSUMS).write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(ValueError, match=r"sha256.json is corrupt \(RecursionError"):
+        checkpoint.load_tree(params)
+
+
+def test_a_checksum_file_naming_a_file_outside_its_directory_is_refused(straight_run, tmp_path):
+    import hashlib
+
+    params = tmp_path / "params"
+    shutil.copytree(straight_run / "params", params)
+    outside = tmp_path / "outside.txt"
+    outside.write_text("not a parameter")
+    manifest = json.loads((params / checkpoint.CHECKSUMS).read_text())
+    manifest["files"]["../outside.txt"] = hashlib.sha256(outside.read_bytes()).hexdigest()
+    (params / checkpoint.CHECKSUMS).write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match=r"it names '../outside.txt', outside"):
         checkpoint.load_tree(params)

@@ -14,6 +14,7 @@ import os
 import shutil
 import signal
 
+import numpy as np
 import pytest
 
 from advisor_jax.cli.main import main as cli_main
@@ -22,7 +23,7 @@ from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.run_directory import load_actor
 from advisor_jax.training.runlock import Interrupted
 from tests.train.conftest import RUN_HP, RUN_SEEDS, TINY, train_tiny
-from tests.train.test_signals_resume import signal_in_chunk
+from tests.train.test_signals_resume import assert_same_params, signal_in_chunk
 
 OTHER_SEEDS = [5, 6, 7, 8, 9]
 
@@ -128,13 +129,30 @@ def test_a_checkpoint_of_another_run_is_refused_on_resume(tmp_path, tiny_functio
     assert snapshot(ours) == before
 
 
+def test_a_checkpoint_without_its_checksums_is_set_aside_on_resume(
+    straight_run, tmp_path, capsys, tiny_functions
+):
+    out = tmp_path / "run"
+    with pytest.raises(Interrupted):  # checkpoints at steps 40 and 80
+        train_tiny(out, signal_in_chunk(tiny_functions, signal.SIGTERM, on_call=1),
+                   checkpoint_every=1)  # fmt: skip
+    newest = out / "checkpoints" / str(2 * TINY.chunk_steps)
+    (newest / checkpoint.CHECKSUMS).unlink()  # a save killed between orbax and its manifest
+    assert train_tiny(out, tiny_functions, resume=True)["status"] == "finished"
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"checkpoint at step {2 * TINY.chunk_steps} is corrupt" in err
+    assert f"resuming {out} at environment step {TINY.chunk_steps}" in err
+    assert (out / "checkpoints" / f"{2 * TINY.chunk_steps}.corrupt").is_dir()
+    assert_same_params(out, straight_run)
+
+
 def test_a_save_never_skips_over_another_runs_step(other_run, tmp_path, tiny_functions):
     from advisor_jax.training.run_state import run_identity
 
     ours = json.loads((other_run / "run.json").read_text())["identity"]
     theirs = run_identity({"another": "config"}, [{"seed": 0}])
     ckpts = tmp_path / "checkpoints"
-    state = {"x": __import__("numpy").arange(4.0)}
+    state = {"x": np.arange(4.0)}
     checkpoint.save_step(ckpts, 40, state, run=theirs)
     with pytest.raises(checkpoint.ForeignRunError, match="belongs to another run"):
         checkpoint.save_step(ckpts, 40, state, run=ours)
