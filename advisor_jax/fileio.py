@@ -23,6 +23,7 @@ line.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -53,34 +54,36 @@ def _write_temporary(path: Path, data: bytes) -> str:
         raise OSError(f"cannot write {path}: {e.filename} is not a directory") from e
     except OSError as e:
         raise _cannot("write", path, e) from e
-    try:
+    with _removed_on_failure(tmp, path):
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
-    except OSError as e:  # a full disk, a quota, a read-only remount: name the file
-        Path(tmp).unlink(missing_ok=True)
-        raise _cannot("write", path, e) from e
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return tmp
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Writes ``data`` to ``path`` atomically; creates the parent directory."""
-    path = Path(path)
-    tmp = _write_temporary(path, data)
+@contextlib.contextmanager
+def _removed_on_failure(tmp: str, path: Path):
+    """Removes the temporary file ``tmp`` if the block fails; an OSError (a full disk, a
+    quota, a read-only remount) is reworded to name ``path``."""
     try:
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
+        yield
     except OSError as e:
         Path(tmp).unlink(missing_ok=True)
         raise _cannot("write", path, e) from e
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Writes ``data`` to ``path`` atomically; creates the parent directory."""
+    path = Path(path)
+    tmp = _write_temporary(path, data)
+    with _removed_on_failure(tmp, path):
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
     return path
 
 

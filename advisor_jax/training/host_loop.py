@@ -285,17 +285,10 @@ def _train_locked(
         stop.check()
     except KeyboardInterrupt as e:
         host = save_checkpoint(state)  # gathered by every process, as `real` requires
-        summary.update(
-            status="interrupted", env_steps_per_agent=step, train_seconds=round(train_seconds(), 2)
-        )
         if writer:
             run_outputs.write_episode_metrics(out_dir, host, hp, agents, trainer.schedule)
-            atomic_write_json(run_file, summary)
-        raise interrupts.Interrupted(
-            getattr(e, "signum", signal.SIGINT),
-            f"at environment step {step}: checkpoint saved; continue with --resume "
-            f"(--out {out_dir})",
-        ) from None
+        where = f"at environment step {step}: checkpoint saved; continue with --resume"
+        _stopped(e, run_file, summary, step, train_seconds(), where, writer)
     state = real(state)
     if not writer:
         return summary
@@ -306,13 +299,18 @@ def _train_locked(
             eval_key=eval_key(eval_from), check=stop.check,
         )  # fmt: skip
     except KeyboardInterrupt as e:
-        summary.update(status="interrupted", env_steps_per_agent=step, train_seconds=seconds)
+        where = ("after training, during the final evaluation: training is complete and "
+                 "saved; --resume finishes the run without training more")  # fmt: skip
+        _stopped(e, run_file, summary, step, seconds, where, writer)
+
+
+def _stopped(signal_error, run_file, summary, step, seconds, where, writer):
+    """Records an interrupted run in run.json and raises ``Interrupted`` saying ``where``."""
+    summary.update(status="interrupted", env_steps_per_agent=step, train_seconds=round(seconds, 2))
+    if writer:
         atomic_write_json(run_file, summary)
-        raise interrupts.Interrupted(
-            getattr(e, "signum", signal.SIGINT),
-            f"after training, during the final evaluation: training is complete and saved; "
-            f"--resume finishes the run without training more (--out {out_dir})",
-        ) from None
+    signum = getattr(signal_error, "signum", signal.SIGINT)
+    raise interrupts.Interrupted(signum, f"{where} (--out {run_file.parent})") from None
 
 
 def _all_done(episodes: np.ndarray, diverged: np.ndarray, n_total: int) -> bool:

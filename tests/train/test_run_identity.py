@@ -19,10 +19,9 @@ import pytest
 
 from advisor_jax.cli.main import main as cli_main
 from advisor_jax.training import checkpoint, reporting
-from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.run_directory import load_actor
 from advisor_jax.training.runlock import Interrupted
-from tests.train.conftest import RUN_HP, RUN_SEEDS, TINY, train_tiny
+from tests.train.conftest import RUN_SEEDS, TINY, train_tiny
 from tests.train.test_signals_resume import assert_same_params, signal_in_chunk
 
 OTHER_SEEDS = [5, 6, 7, 8, 9]
@@ -30,8 +29,7 @@ OTHER_SEEDS = [5, 6, 7, 8, 9]
 
 def train_other(out, program, **kw):
     """A TINY run of OTHER_SEEDS: another run of the same shapes (no new compile)."""
-    kw = {"eval_episodes": 0, "checkpoint_every": 0, "progress": False, **kw}
-    return run_training(TINY, RUN_HP, {}, OTHER_SEEDS, out, program=program, **kw)
+    return train_tiny(out, program, seeds=OTHER_SEEDS, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -86,23 +84,40 @@ def test_a_new_run_into_a_killed_runs_directory_is_refused(tmp_path, monkeypatch
     assert snapshot(out) == before  # nothing mixed in
 
 
-def test_params_of_another_run_are_refused(straight_run, other_run, tmp_path, capsys):
-    out = tmp_path / "run"
-    shutil.copytree(straight_run, out)
+def _params_of_another_run(out, other_run):
     shutil.rmtree(out / "params")
     shutil.copytree(other_run / "params", out / "params")
-    with pytest.raises(ValueError, match=r"not this run's: .*belongs to another run \(seeds \[5,"):
-        load_actor(out, 0)
-    assert_export_and_evaluate_refuse(out, tmp_path, capsys, "belongs to another run")
 
 
-def test_deleted_params_checksums_keep_the_check_on(straight_run, tmp_path, capsys):
+def _params_checksums_deleted(out, other_run):
+    (out / "params" / checkpoint.CHECKSUMS).unlink()
+
+
+@pytest.mark.parametrize(
+    ("damage", "message", "line"),
+    [
+        (
+            _params_of_another_run,
+            r"not this run's: .*belongs to another run \(seeds \[5,",
+            "belongs to another run",
+        ),
+        (
+            _params_checksums_deleted,
+            r"sha256.json is missing: this run records checksums",
+            "sha256.json is missing",
+        ),
+    ],
+    ids=["params-of-another-run", "params-checksums-deleted"],
+)
+def test_params_not_of_this_run_are_refused(
+    straight_run, other_run, tmp_path, capsys, damage, message, line
+):
     out = tmp_path / "run"
     shutil.copytree(straight_run, out)
-    (out / "params" / checkpoint.CHECKSUMS).unlink()
-    with pytest.raises(ValueError, match=r"sha256.json is missing: this run records checksums"):
+    damage(out, other_run)
+    with pytest.raises(ValueError, match=message):
         load_actor(out, 0)
-    assert_export_and_evaluate_refuse(out, tmp_path, capsys, "sha256.json is missing")
+    assert_export_and_evaluate_refuse(out, tmp_path, capsys, line)
 
 
 def test_run_json_edited_to_another_seed_is_refused(straight_run, tmp_path, capsys):
@@ -159,7 +174,9 @@ def test_a_save_never_skips_over_another_runs_step(other_run, tmp_path, tiny_fun
     checkpoint.save_step(ckpts, 40, state, run=theirs)  # its own step: kept, as before
 
 
-def test_signed_export_round_trip_and_one_changed_byte(straight_run, tmp_path, capsys):
+def test_export_signs_with_sign_key(straight_run, tmp_path, capsys):
+    """The command-line side of signed exports; every file's changed byte is refused in
+    tests/runner/test_car_safety.py."""
     from advisor_jax.runner.errors import PolicyError
     from advisor_jax.runner.policy import load_policy
 
@@ -170,13 +187,7 @@ def test_signed_export_round_trip_and_one_changed_byte(straight_run, tmp_path, c
     cli_main(["export", str(straight_run), "--out", str(policy), "--sign-key", str(key_file)])
     assert "signed" in capsys.readouterr().out
     assert load_policy(policy, verify_key=key).meta["config"]["seed"] == RUN_SEEDS[0]
-    for name in sorted(os.listdir(policy)):
-        changed = tmp_path / f"changed-{name}"
-        shutil.copytree(policy, changed)
-        data = bytearray((changed / name).read_bytes())
-        data[len(data) // 2] ^= 0x01
-        (changed / name).write_bytes(bytes(data))
-        with pytest.raises(PolicyError):
-            load_policy(changed, verify_key=key)
-    with pytest.raises(PolicyError, match="not with this car's key"):
-        load_policy(policy, verify_key=b"another key of enough bytes")
+    text = (policy / "policy.json").read_text()
+    (policy / "policy.json").write_text(text.replace('"seed": 0', '"seed": 1'))
+    with pytest.raises(PolicyError, match="the signature does not match policy.json"):
+        load_policy(policy, verify_key=key)
