@@ -244,12 +244,16 @@ def test_stopped_during_the_final_evaluation_resume_evaluates_without_training(
         os.kill(os.getpid(), signal.SIGINT)
         return real(*args, **kw)
 
+    def compiled_once(*args, **kw):  # the run's evaluator, compiled once for these tests
+        return tiny_evaluators["training"]
+
+    monkeypatch.setattr(run_outputs, "population_evaluator", compiled_once)
     monkeypatch.setattr(run_outputs, "evaluate_population", evaluate)
     kw = {"eval_episodes": EVAL_EPISODES, "eval_arenas": ("training",)}
     program = with_step_bound(tiny_functions)
     with pytest.raises(Interrupted if how == "sigint" else SystemExit) as info:
         train_tiny(out, program, **kw)
-    monkeypatch.undo()
+    monkeypatch.setattr(run_outputs, "evaluate_population", real)
     status = json.loads((out / "run.json").read_text())["status"]
     assert status == ("interrupted" if how == "sigint" else "running")
     if how == "sigint":
