@@ -26,7 +26,8 @@ class ExportArgs:
     source: Annotated[Path, tyro.conf.Positional]
     """Run directory written by ``advisor-jax train``."""
     out: Annotated[str, tyro.conf.arg(metavar="DIR")]
-    """Export directory (created; files are replaced atomically)."""
+    """Export directory: created, complete or not at all; it must not exist yet or be empty
+    (an export never writes over files)."""
     agent: int = 0
     """Index of the agent in the run (see run.json "agents")."""
     onnx: bool = False
@@ -37,6 +38,10 @@ class ExportArgs:
     """Rollout steps per environment for the golden observations."""
     seed: int = 0
     """Seed of the golden rollouts."""
+    sign_key: Annotated[Path | None, tyro.conf.arg(metavar="KEYFILE")] = None
+    """Sign the export with the key in this file (policy.sig, an HMAC-SHA256 of policy.json);
+    a car started with --verify-key KEYFILE then refuses any export not signed with it. Make
+    a key with: head -c 32 /dev/urandom > KEYFILE (keep it off the policy directory)."""
 
 
 def export_command(args: ExportArgs) -> dict:
@@ -44,15 +49,20 @@ def export_command(args: ExportArgs) -> dict:
 
     import envs
     from advisor_jax.agent.networks import make_actor
-    from advisor_jax.deploy.export import export_policy
+    from advisor_jax.deploy.export import check_new_export_dir, export_policy
     from advisor_jax.evaluation.evaluate import rollout_observations
+    from advisor_jax.runner.signature import read_key
+    from advisor_jax.training.limits import check_eval_episodes
     from advisor_jax.training.population import seed_key
     from advisor_jax.training.run_directory import load_actor
 
     if args.golden_envs <= 0 or args.golden_steps <= 0:
         raise ValueError("--golden-envs and --golden-steps must be positive")
+    check_eval_episodes(args.golden_envs * args.golden_steps, 1, "--golden-envs x --golden-steps")
     if not args.out.strip():  # Path("") is ".": it would write into the current directory
         raise ValueError("--out '' is empty: name the export directory")
+    check_new_export_dir(args.out)  # before any work
+    sign_key = None if args.sign_key is None else read_key(args.sign_key, "--sign-key")
     key = seed_key(args.seed)
     cfg, row, actor = load_actor(args.source, args.agent)
     env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)
@@ -74,6 +84,8 @@ def export_command(args: ExportArgs) -> dict:
         config_meta=config_meta,
         golden_obs=obs,
         onnx=args.onnx,
+        sign_key=sign_key,
     )
-    print(f"exported agent {args.agent} ({cfg.agent.name}) of {args.source} to {args.out}/")
+    signed = "" if sign_key is None else ", signed"
+    print(f"exported agent {args.agent} ({cfg.agent.name}) of {args.source} to {args.out}/{signed}")
     return meta

@@ -11,9 +11,10 @@
 
 To add a subcommand, write a function with type-hinted keyword arguments and a docstring
 (tyro turns them into flags and ``--help``) and add it to ``SUBCOMMANDS``. ``main`` turns
-every ``ValueError``, ``OSError`` and runner error into one red ``error: ...`` line and exit
-status 2, and an interrupt (Ctrl-C, or SIGTERM while training) into one line and status
-128 + the signal number, never a traceback. JAX, MuJoCo and the environments are imported
+every ``ValueError``, ``OSError``, runner error and out-of-memory error into one red
+``error: ...`` line and exit status 2, and an interrupt (Ctrl-C, or SIGTERM / SIGHUP while
+training) into one line saying where it stopped and how to continue, with status 128 + the
+signal number, never a traceback. JAX, MuJoCo and the environments are imported
 inside the commands, so ``--help`` stays quick.
 """
 
@@ -23,6 +24,7 @@ import contextlib
 import json as jsonlib
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Annotated, Any
@@ -36,7 +38,7 @@ from advisor_jax.cli.export import ExportArgs, export_command
 from advisor_jax.cli.report import ReportArgs, report_command
 from advisor_jax.cli.sweep import SweepArgs, sweep_command
 from advisor_jax.cli.train import TrainArgs, train_command
-from advisor_jax.fileio import atomic_write_text
+from advisor_jax.fileio import atomic_create_bytes
 from advisor_jax.runner.errors import RunnerError
 
 
@@ -57,7 +59,7 @@ def arena(
 
     Args:
       name: Arena: training, validation, physical or procedural.
-      xml: Output file.
+      xml: Output file, a new one (an existing file is never overwritten).
       seed: Procedural arena only: write the layout of the first episode of
         env.reset(key of seed), as drawn in training and evaluation.
     """
@@ -66,7 +68,7 @@ def arena(
     env = _envs().make_env(name)
     boxes = env.layout_boxes(seed_key(seed)) if env.procedural else None
     text = env.xml(boxes)
-    atomic_write_text(xml, text)  # OSError: 'cannot write <xml>: <why>'
+    atomic_create_bytes(xml, text.encode())  # a new file; OSError: 'cannot write <xml>: <why>'
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
 
 
@@ -92,8 +94,9 @@ def evaluate(
     """
     import jax
 
-    if episodes <= 0:
-        raise ValueError(f"--episodes must be a positive integer, got {episodes}")
+    from advisor_jax.training.limits import check_eval_episodes
+
+    check_eval_episodes(episodes, 1, "--episodes")
     env = _envs().make_env(arena)
     from advisor_jax.cli.policy_spec import resolve_policy
     from advisor_jax.evaluation.evaluate import make_evaluate, summary
@@ -181,17 +184,42 @@ def main(argv: Sequence[str] | None = None) -> None:
             args=argv,
         )
     except (ValueError, OSError, RunnerError) as err:
-        message = " ".join(str(err).split()) or type(err).__name__
-        Console(stderr=True, highlight=False).print(
-            Text(f"error: {message}", style="bold red"), soft_wrap=True
-        )
+        _error_line(" ".join(str(err).split()) or type(err).__name__)
         sys.exit(2)
-    except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM during training (runlock.Interrupted)
+    except KeyboardInterrupt as err:  # Ctrl-C, or a signal during training (Interrupted)
+        previous = _ignore_interrupts()  # a second Ctrl-C must not cut the line below
         signum = getattr(err, "signum", signal.SIGINT)
+        detail = getattr(err, "detail", "")
         Console(stderr=True, highlight=False).print(
-            Text(f"stopped by {signal.Signals(signum).name}", style="bold red")
+            Text(f"stopped by {signal.Signals(signum).name} {detail}".strip(), style="bold red"),
+            soft_wrap=True,
         )
+        for s, handler in previous.items():
+            signal.signal(s, handler)
         sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
+    except MemoryError:
+        _error_line("out of host memory: lower the number of agents, episodes or buffer size")
+        sys.exit(2)
+    except Exception as err:
+        if "RESOURCE_EXHAUSTED" not in str(err):
+            raise  # a bug: its traceback is what a report needs
+        first = " ".join(str(err).strip().splitlines()[0].split())[:300]
+        _error_line(f"the device ran out of memory ({first}); lower the number of agents, "
+                    "episodes or buffer size, or use more devices")  # fmt: skip
+        sys.exit(2)
+
+
+def _error_line(message: str) -> None:
+    Console(stderr=True, highlight=False).print(
+        Text(f"error: {message}", style="bold red"), soft_wrap=True
+    )
+
+
+def _ignore_interrupts() -> dict:
+    """Ignores SIGINT and SIGTERM; returns the handlers to restore (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
 
 
 if __name__ == "__main__":

@@ -29,12 +29,15 @@ def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
         from advisor_jax.runner.policy import load_policy
 
         loaded = load_policy(directory)
-        omega = env.config.omega_max
-        if abs(loaded.omega_max - omega) > 1e-9:
-            raise ValueError(
-                f"{directory} was exported with omega_max={loaded.omega_max:g} rad/s but the "
-                f"arena uses {omega:g}"
-            )
+        # The arena runs with its own scales: an export made for others would be evaluated
+        # as it never drives (a forged v_max = 5 m/s got the honest numbers).
+        for name, unit in (("v_max", "m/s"), ("omega_max", "rad/s"), ("dt", "s")):
+            exported, arena = getattr(loaded, name), getattr(env.config, name)
+            if abs(exported - arena) > 1e-9:
+                raise ValueError(
+                    f"{directory} was exported with {name}={exported:g} {unit} but the "
+                    f"arena uses {arena:g}: its evaluation here would not be how it drives"
+                )
         params, hidden = actor_params_from_policy(loaded)
         return make_actor(hidden).apply, params
     if (directory / "run.json").is_file():

@@ -11,6 +11,7 @@ reads and verifies on the car::
     policy.json   metadata (schema 2): layers, heads, observation/sensor layout, control
                   scaling, env and config, config_hash, sha256 of every file and of
                   policy.json's own contents (metadata_sha256)
+    policy.sig    (optional, ``sign_key``) HMAC-SHA256 of policy.json (``runner/signature``)
 
 Outline::
 
@@ -19,8 +20,11 @@ Outline::
     actions  = jax.jit(make_actor(hidden).apply)(arrays, obs)   on CPU, "highest" matmul precision
                (a GPU's default TF32 matmuls would miss the runner's 1e-5 check)
     verify   numpy MLP == actions (1e-5); ONNX via onnxruntime == actions (1e-5) if asked
-    write    each file atomically (temp file in out_dir, fsync, os.replace); policy.json last
+    write    every file into a new temporary directory beside out_dir (fsynced); policy.json
+             and policy.sig last
     reload   with the runner's load_policy, which repeats every check from the files
+    rename   the temporary directory to out_dir, which must not exist or be empty: an export
+             is complete or absent, and never written over another one or over other files
 
 Non-finite floats in env/config metadata (e.g. N_T = inf) are stored as the strings "inf",
 "-inf", "nan" so that policy.json stays strict JSON.
@@ -45,9 +49,10 @@ from advisor_jax import __version__
 from advisor_jax.agent.networks import make_actor
 from advisor_jax.contract import spec
 from advisor_jax.deploy.golden import ExportError, golden_observations
-from advisor_jax.fileio import atomic_write_bytes
+from advisor_jax.fileio import atomic_write_directory
 from advisor_jax.runner import policy as rp
 from advisor_jax.runner import policy_meta as pm
+from advisor_jax.runner import signature
 from advisor_jax.runner.errors import RunnerError
 from advisor_jax.runner.onnx_model import build_onnx
 
@@ -63,17 +68,19 @@ def export_policy(
     config_meta: dict,
     golden_obs: np.ndarray,
     onnx: bool = False,
+    sign_key: bytes | None = None,
 ) -> dict:
-    """Writes policy.npz, golden.npz, [policy.onnx,] policy.json into ``out_dir``.
+    """Writes policy.npz, golden.npz, [policy.onnx,] policy.json [, policy.sig] into ``out_dir``.
 
     Args:
       actor_params: flax params of ``make_actor(actor_hidden)`` (with or without the "params" key).
-      out_dir: directory to create or overwrite.
+      out_dir: directory to create; it must not exist yet, or be empty.
       actor_hidden: hidden widths, e.g. (600, 300).
       env_meta: ``NavEnv.metadata()``; needs ``omega_max`` and ``bounds``.
       config_meta: preset, agent name, hyperparameters, ... (anything JSON-able).
       golden_obs: [N, 20] rollout observations; edge cases and a random fill are appended.
       onnx: also write policy.onnx (needs the ``onnx`` extra).
+      sign_key: sign policy.json with this key (policy.sig; the car's ``--verify-key``).
 
     Returns:
       The policy.json dict.
@@ -101,7 +108,7 @@ def export_policy(
             raise ExportError(str(e)) from None
 
     out_dir = os.fspath(out_dir)
-    os.makedirs(out_dir, exist_ok=True)
+    check_new_export_dir(out_dir)
     weights = _npz_bytes(
         {f"{layer.name}/{p}": getattr(layer, p) for layer in layers for p in ("kernel", "bias")}
     )
@@ -147,17 +154,30 @@ def export_policy(
         "advisor_jax_version": __version__,
     }
     meta["metadata_sha256"] = pm.metadata_sha256(meta)  # last: covers every field above
-    atomic_write_bytes(os.path.join(out_dir, rp.POLICY_NPZ), weights)
-    atomic_write_bytes(os.path.join(out_dir, rp.GOLDEN_NPZ), golden_bytes)
-    onnx_path = os.path.join(out_dir, rp.POLICY_ONNX)
-    if onnx_bytes is not None:
-        atomic_write_bytes(onnx_path, onnx_bytes)
-    elif os.path.exists(onnx_path):
-        os.remove(onnx_path)  # a stale model from an earlier export would not match
     text = json.dumps(meta, indent=1, allow_nan=False)  # strict JSON, indented for humans
-    atomic_write_bytes(os.path.join(out_dir, rp.POLICY_JSON), (text + "\n").encode("utf-8"))
-    rp.load_policy(out_dir)  # end-to-end: exactly what the car will do
+    files = {rp.POLICY_NPZ: weights, rp.GOLDEN_NPZ: golden_bytes}
+    if onnx_bytes is not None:
+        files[rp.POLICY_ONNX] = onnx_bytes
+    files[rp.POLICY_JSON] = (text + "\n").encode("utf-8")
+    if sign_key is not None:
+        files[signature.SIGNATURE_FILE] = signature.sign(files[rp.POLICY_JSON], sign_key)
+    # Verified end to end, exactly as the car will load it, before it takes its name.
+    atomic_write_directory(out_dir, files, verify=lambda d: rp.load_policy(d, sign_key))
     return meta
+
+
+def check_new_export_dir(out_dir: str) -> None:
+    """An export goes into a new or empty directory, never over files already there."""
+    if os.path.islink(out_dir):
+        raise ExportError(f"--out {out_dir} is a symbolic link; name a new directory")
+    if os.path.exists(out_dir):
+        if not os.path.isdir(out_dir):
+            raise ExportError(f"--out {out_dir} exists and is not a directory")
+        if os.listdir(out_dir):
+            raise ExportError(
+                f"--out {out_dir} is not empty: an export never writes over files (an earlier "
+                "export among them); choose a new directory, or remove this one first"
+            )
 
 
 def _actor_layers(actor_params: Mapping, hidden: tuple[int, ...]) -> tuple[rp.Layer, ...]:

@@ -2,13 +2,18 @@
 
     advisor-jax-car POLICY_DIR --goal X Y --drive ackermann --wheelbase 0.26 --max-steer 25 \\
         [--rate HZ] [--lidar-port /dev/ttyUSB0] [--pose-udp 0.0.0.0:5005] [--log FILE] \\
+        [--limits FILE] [--max-speed M/S] [--max-yaw-rate RAD/S] [--verify-key KEYFILE] \\
         [--dry-run | --motor package.module:factory]
     advisor-jax-car --replay LOG [POLICY_DIR]
 
-Driving: verifies the export (``policy.load_policy``), checks the goal against the arena
-bounds, opens the lidar and the pose socket, and runs the watchdog loop (``loop.py``) until
-the goal, a collision, ``--max-cycles`` or Ctrl-C / SIGTERM; motors are stopped on every
-exit path. ``--dry-run`` prints the commands instead of sending them. Replay re-feeds a log's
+Driving: verifies the export (``policy.load_policy``; its signature too with
+``--verify-key``), refuses a policy that would command more than the car's own limits
+(``limits.py``: built-in spec, ``--limits FILE``, flags; never the policy directory) and
+prints them, checks the goal against the arena bounds, creates the log (a new file: never
+over an existing one), opens the lidar and the pose socket, and runs the watchdog loop
+(``loop.py``) until the goal, a collision, ``--max-cycles`` or Ctrl-C / SIGTERM; motors are
+stopped on every exit path, with further signals ignored until they are. ``--dry-run``
+prints the commands instead of sending them. Replay re-feeds a log's
 inputs through the policy and exits 1 if any decision differs. Errors print one line
 (``advisor-jax-car: error: ...``) and exit 2. argparse only: no tyro on the car.
 
@@ -24,7 +29,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # must precede the first numpy import
 
 import argparse  # noqa: E402
-import datetime  # noqa: E402
 import math  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
@@ -34,7 +38,13 @@ from advisor_jax.runner import cyclelog, hardware  # noqa: E402
 from advisor_jax.runner.cyclelog import log_header  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive, DiffDrive  # noqa: E402
 from advisor_jax.runner.errors import RunnerError  # noqa: E402
-from advisor_jax.runner.loop import Controller, LoopConfig, run_loop  # noqa: E402
+from advisor_jax.runner.limits import CAR_SPEC, check_policy, limits_from_options  # noqa: E402
+from advisor_jax.runner.loop import (  # noqa: E402
+    Controller,
+    LoopConfig,
+    run_loop,
+    signals_ignored,
+)
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
 from advisor_jax.runner.policy import load_policy  # noqa: E402
 from advisor_jax.runner.replay import replay  # noqa: E402
@@ -80,7 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.0,
         help="allowed |difference| in replay (default 0: bit-exact)",
     )
-    p.add_argument("--rate", type=float, help="control rate in Hz (default 1 / policy dt)")
+    p.add_argument(
+        "--rate",
+        type=float,
+        help="control rate in Hz (default 1 / policy dt); its period may not exceed the "
+        "watchdog's --max-scan-age / --max-pose-age",
+    )
     p.add_argument("--max-cycles", type=int, help="stop after this many cycles")
     p.add_argument(
         "--no-warm-up",
@@ -89,6 +104,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="skip the warm-up pass (zones + actor on the previous cycle's inputs, results "
         "discarded) that brings weights and code back into cache before each cycle",
     )
+    _add_sensor_args(p)
+    _add_safety_args(p)
+    g = p.add_argument_group("drive")
+    g.add_argument("--drive", choices=("diff", "ackermann"))
+    g.add_argument("--track-width", type=float, metavar="M", help="diff: wheel separation")
+    g.add_argument("--max-wheel-speed", type=float, metavar="M/S")
+    g.add_argument("--wheelbase", type=float, metavar="M", help="ackermann: axle distance")
+    g.add_argument("--max-steer", type=float, metavar="DEG", help="ackermann: steering lock")
+    g.add_argument("--dry-run", action="store_true", help="print commands, drive no motors")
+    g.add_argument("--motor", metavar="MODULE:FACTORY", help="motor driver factory")
+    p.add_argument(
+        "--log",
+        help="JSONL log, a new file (default advisor-jax-car-<UTC time>.jsonl); an existing "
+        "file is never overwritten",
+    )
+    return p
+
+
+def _add_sensor_args(p: argparse.ArgumentParser) -> None:
+    """The lidar's and the pose tracker's options."""
     g = p.add_argument_group("lidar (RPLIDAR)")
     g.add_argument("--lidar-port", default="/dev/ttyUSB0")
     g.add_argument("--lidar-baud", type=int, default=115200)
@@ -129,6 +164,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="M/S",
         help="faster apparent motion is a tracker glitch",
     )
+
+
+def _add_safety_args(p: argparse.ArgumentParser) -> None:
+    """The watchdog's options and the car's own limits."""
     g = p.add_argument_group("watchdog")
     g.add_argument("--max-scan-age", type=float, default=0.3, metavar="S")
     g.add_argument("--max-pose-age", type=float, default=0.3, metavar="S")
@@ -144,16 +183,30 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="M",
         help="stop when min zone <= this (default: T_c of policy.json; <0: never)",
     )
-    g = p.add_argument_group("drive")
-    g.add_argument("--drive", choices=("diff", "ackermann"))
-    g.add_argument("--track-width", type=float, metavar="M", help="diff: wheel separation")
-    g.add_argument("--max-wheel-speed", type=float, metavar="M/S")
-    g.add_argument("--wheelbase", type=float, metavar="M", help="ackermann: axle distance")
-    g.add_argument("--max-steer", type=float, metavar="DEG", help="ackermann: steering lock")
-    g.add_argument("--dry-run", action="store_true", help="print commands, drive no motors")
-    g.add_argument("--motor", metavar="MODULE:FACTORY", help="motor driver factory")
-    p.add_argument("--log", help="JSONL log (default advisor-jax-car-<UTC time>.jsonl)")
-    return p
+    g = p.add_argument_group("the car's own limits (never taken from the policy directory)")
+    g.add_argument(
+        "--limits",
+        metavar="FILE",
+        help="operator's JSON file: max_speed (m/s), max_yaw_rate (rad/s), verify_key (a key "
+        "file: every export must be signed with it)",
+    )
+    g.add_argument(
+        "--max-speed",
+        type=float,
+        metavar="M/S",
+        help=f"forward speed limit (default {CAR_SPEC['max_speed']:g}, or the limits file)",
+    )
+    g.add_argument(
+        "--max-yaw-rate",
+        type=float,
+        metavar="RAD/S",
+        help=f"yaw-rate limit (default {CAR_SPEC['max_yaw_rate']:g}, or the limits file)",
+    )
+    g.add_argument(
+        "--verify-key",
+        metavar="KEYFILE",
+        help="refuse any export not signed with this key (advisor-jax export --sign-key)",
+    )
 
 
 def _drive_from_args(args: argparse.Namespace):
@@ -202,7 +255,13 @@ def drive(args: argparse.Namespace) -> int:
         raise ValueError("driving needs POLICY_DIR and --goal X Y")
     drive_model = _drive_from_args(args)  # argument errors before any hardware is touched
     host, port = _host_port(args.pose_udp)
-    policy = load_policy(args.policy_dir)
+    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
+        raise ValueError(f"--rate {args.rate:g} Hz: the control rate must be a positive number")
+    limits, key = limits_from_options(args.limits, args.max_speed, args.max_yaw_rate,
+                                      args.verify_key)  # fmt: skip
+    policy = load_policy(args.policy_dir, verify_key=key)
+    check_policy(os.path.join(args.policy_dir, "policy.json"), policy.v_max, policy.omega_max,
+                 limits)  # fmt: skip
     obs_cfg = ObservationConfig(
         max_range=policy.max_range,
         range_offset=policy.range_offset if args.range_offset is None else args.range_offset,
@@ -224,13 +283,12 @@ def drive(args: argparse.Namespace) -> int:
         )
     builder = ObservationBuilder(obs_cfg, tuple(args.goal))
     collision = _default(args.collision_distance, policy.env, "T_c", None)
-    rate = args.rate or 1.0 / policy.dt
-    if abs(rate * policy.dt - 1.0) > 0.01:
-        print(
-            f"{PROG}: warning: rate {rate:g} Hz differs from the training rate "
-            f"{1 / policy.dt:g} Hz; the velocity inputs will not match",
-            file=sys.stderr,
+    if args.collision_distance is None and collision is not None and not collision >= 0:
+        raise ValueError(  # only the operator may turn the collision stop off, never a file
+            f"{args.policy_dir}: env.T_c = {collision:g} in policy.json would turn the "
+            "collision stop off; give --collision-distance to choose it on the car's side"
         )
+    rate = args.rate if args.rate is not None else 1.0 / policy.dt
     loop_cfg = LoopConfig(
         rate_hz=rate,
         max_scan_age=args.max_scan_age,
@@ -238,37 +296,51 @@ def drive(args: argparse.Namespace) -> int:
         goal_tolerance=_default(args.goal_tolerance, policy.env, "T_g", 0.15),
         collision_distance=None if collision is None or collision < 0 else collision,
         max_cycles=args.max_cycles,
+        max_speed=limits.max_speed,
+        max_yaw_rate=limits.max_yaw_rate,
         warm_up=args.warm_up,
     )
     controller = Controller(policy, builder, drive_model, loop_cfg)
+    if abs(rate * policy.dt - 1.0) > 0.01:
+        print(
+            f"{PROG}: warning: rate {rate:g} Hz differs from the training rate "
+            f"{1 / policy.dt:g} Hz; the velocity inputs will not match",
+            file=sys.stderr,
+        )
     if args.dry_run:
         motor = hardware.PrintMotorDriver()
     elif args.motor:
         motor = hardware.load_motor_driver(args.motor)
     else:
         raise ValueError("no motor driver: pass --motor MODULE:FACTORY, or --dry-run")
-    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%S")
-    log_path = args.log or f"{PROG}-{stamp}.jsonl"
-    scans = poses = None
+    if args.log is not None and os.path.lexists(args.log):  # before any hardware is opened
+        raise FileExistsError(f"{args.log} exists already; it is never overwritten: choose "
+                              "another --log")  # fmt: skip
+    log = log_path = scans = poses = None
     previous_handler = signal.signal(signal.SIGTERM, _raise_interrupt)  # systemd/kill → stop
     try:
         motor.stop()
         scans = hardware.RplidarScanSource(args.lidar_port, baudrate=args.lidar_baud)
         poses = hardware.UdpPoseSource(host, port)
-        log = cyclelog.JsonlLog(log_path)
+        log = cyclelog.new_log(args.log, PROG)  # a new file, never over an existing one
+        log_path = log.path
         log.write(log_header(controller, policy, argv=sys.argv))
         print(
-            f"{PROG}: driving to ({args.goal[0]:g}, {args.goal[1]:g}) at {rate:g} Hz; "
-            f"log {log_path}; Ctrl-C stops",
+            f"{PROG}: driving to ({args.goal[0]:g}, {args.goal[1]:g}) at {rate:g} Hz within "
+            f"the {limits.describe()}; log {log_path}; Ctrl-C stops",
             file=sys.stderr,
         )
         summary = run_loop(controller, scans, poses, motor, log=log)
     except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; motors stopped; log {log_path}", file=sys.stderr)
+        with signals_ignored():
+            print(f"{PROG}: interrupted; motors stopped; log {log_path}", file=sys.stderr)
         return 130
     finally:
-        signal.signal(signal.SIGTERM, previous_handler)
-        _shutdown(motor, scans, poses)
+        with signals_ignored():
+            signal.signal(signal.SIGTERM, previous_handler)
+            _shutdown(motor, scans, poses)
+            if log is not None:
+                log.close()
     stops = ", ".join(f"{k} x{v}" for k, v in summary.stops.items()) or "none"
     print(
         f"{PROG}: ended ({summary.end}) after {summary.cycles} cycles; stops: {stops}; "
@@ -279,7 +351,8 @@ def drive(args: argparse.Namespace) -> int:
 
 
 def replay_command(args: argparse.Namespace) -> int:
-    report = replay(args.replay, args.policy_dir, tolerance=args.replay_tolerance)
+    _, key = limits_from_options(args.limits, None, None, args.verify_key)
+    report = replay(args.replay, args.policy_dir, tolerance=args.replay_tolerance, verify_key=key)
     for line in report.mismatches:
         print(f"  mismatch: {line}")
     if not report.ok:

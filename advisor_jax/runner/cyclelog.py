@@ -29,6 +29,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from advisor_jax.fileio import create_exclusive
 from advisor_jax.runner.errors import ReplayError
 from advisor_jax.runner.observation import Pose, Scan
 
@@ -65,14 +66,17 @@ def decode_pose(rec: dict | None) -> Pose | None:
 
 
 class JsonlLog:
-    """Line-buffered JSONL writer; each line is flushed so a crash loses at most one cycle."""
+    """Line-buffered JSONL writer; each line is flushed so a crash loses at most one cycle.
+    A path must name a new file (``fileio.create_exclusive``): an existing log, an export's
+    policy.npz or a link is never written over."""
 
     def __init__(self, path: str | os.PathLike | IO[str]):
         if hasattr(path, "write"):
             self._f, self._own = path, False
+            self.path = getattr(path, "name", None)
         else:
-            self._f, self._own = open(path, "w", encoding="utf-8", buffering=1), True
-        self.path = getattr(self._f, "name", None)
+            self._f, self._own = create_exclusive(path), True
+            self.path = os.fspath(path)
 
     def write(self, record: dict) -> None:
         self._f.write(json.dumps(record, allow_nan=True, separators=(",", ":")) + "\n")
@@ -83,6 +87,20 @@ class JsonlLog:
             self._f.flush()
             os.fsync(self._f.fileno())
             self._f.close()
+
+
+def new_log(path: str | None, prefix: str) -> JsonlLog:
+    """A log in a new file: ``path``, or ``<prefix>-<UTC time>.jsonl`` (with a suffix if
+    another run of the same second took that name). Never over an existing file."""
+    if path is not None:
+        return JsonlLog(path)
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%d-%H%M%S")
+    for n in range(100):
+        try:
+            return JsonlLog(f"{prefix}-{stamp}{'' if n == 0 else f'-{n}'}.jsonl")
+        except FileExistsError:
+            continue
+    raise OSError(f"cannot create a log {prefix}-{stamp}-*.jsonl: every name is taken")
 
 
 def read_log(path: str | os.PathLike) -> tuple[dict, Iterator[dict]]:

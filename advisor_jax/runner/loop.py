@@ -10,21 +10,28 @@ Each cycle (period 1 / rate_hz, default the training dt)::
     goal reached (d ≤ goal_tolerance) or collision (min P ≤ collision_distance)
                                                               → STOP, loop ends ("done")
     a    = policy.act(obs);  (v, w) = a · (v_max, omega_max)  # NaN / out of box → STOP
+    (v, w) beyond the car's own limits (max_speed, max_yaw_rate)  → STOP (limits.py)
     motor.send(drive.command(v, w))
     log one JSONL record; sleep until the next deadline (overruns are counted, not queued)
 
 Any exception inside a cycle (a source, the policy, the drive, the motor) stops the motors
 for that cycle and is logged; the next cycle with fresh, valid data drives again. Whatever
 ends the loop (goal, collision, max_cycles, Ctrl-C, a failing log file), a ``finally`` sends
-a last stop. The clock and sleep are injectable so the tests run on a fake clock.
+a last stop, with SIGINT and SIGTERM ignored until it is sent and the log closed (a second
+Ctrl-C must not cut the stop short). A command is never held longer than the watchdog's
+data age limit: the period 1 / rate_hz may not exceed max_scan_age or max_pose_age.
+The clock and sleep are injectable so the tests run on a fake clock.
 ``Controller.cycle`` is deterministic given (now, scan, pose): ``replay`` re-runs it on a log.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import math
+import signal
+import threading
 import time
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -36,6 +43,7 @@ from advisor_jax.runner import cyclelog
 from advisor_jax.runner.drive import Command, Drive, to_physical
 from advisor_jax.runner.errors import ObservationError, PolicyError
 from advisor_jax.runner.hardware import MotorDriver, PoseSource, ScanSource
+from advisor_jax.runner.limits import CAR_SPEC, within
 from advisor_jax.runner.observation import ObservationBuilder, Pose, Scan, check_fresh
 
 RUN, STOP, DONE = "run", "stop", "done"
@@ -64,6 +72,10 @@ class LoopConfig:
     """m; min zone ≤ this ends the run as a collision (T_c). None: never."""
     max_cycles: int | None = None
     """End after this many cycles (None: run until goal, collision or Ctrl-C)."""
+    max_speed: float = CAR_SPEC["max_speed"]
+    """m/s; the car's own speed limit (``limits.CarLimits``): a faster command is a stop."""
+    max_yaw_rate: float = CAR_SPEC["max_yaw_rate"]
+    """rad/s; the car's own yaw-rate limit: a faster turn is a stop."""
     warm_up: bool = True
     """Before each cycle, run its stateless heavy parts (zone reduction, actor) once on the
     previous cycle's scan and observation and discard the results (``Controller.warm``).
@@ -73,10 +85,18 @@ class LoopConfig:
     more cold observation + MLP of CPU per cycle."""
 
     def __post_init__(self):
-        for name in ("rate_hz", "max_scan_age", "max_pose_age"):
+        for name in ("rate_hz", "max_scan_age", "max_pose_age", "max_speed", "max_yaw_rate"):
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"LoopConfig.{name}={value!r} must be a positive number")
+        hold = min(self.max_scan_age, self.max_pose_age)
+        if 1.0 / self.rate_hz > hold:
+            raise ValueError(
+                f"a control rate of {self.rate_hz:g} Hz holds each command for "
+                f"{1.0 / self.rate_hz:g} s, longer than the watchdog's data age limit of "
+                f"{hold:g} s (max scan/pose age): the car would drive on without a check; use "
+                f"a rate of at least {1.0 / hold:g} Hz"
+            )
         for name in ("goal_tolerance", "collision_distance"):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value >= 0):
@@ -156,6 +176,17 @@ class Controller:
             physical = to_physical(action, self.policy.v_max, self.policy.omega_max)
         except (ValueError, TypeError, IndexError) as e:
             return CycleResult(STOP, "action_invalid", str(e), obs=obs, action=action)
+        if not within(*physical, cfg.max_speed, cfg.max_yaw_rate):
+            v, w = physical
+            return CycleResult(
+                STOP,
+                "beyond_car_limits",
+                f"(v, w) = ({v:.3g} m/s, {w:.3g} rad/s) is beyond the car's limits "
+                f"({cfg.max_speed:g} m/s, {cfg.max_yaw_rate:g} rad/s)",
+                obs,
+                action,
+                physical,
+            )
         try:
             command = self.drive.command(*physical)
         except Exception as e:
@@ -273,13 +304,31 @@ def run_loop(
         summary.end = f"interrupted: {type(e).__name__}"
         raise
     finally:
-        _stop_quietly(motor)
-        if log is not None:
-            try:
-                log.write({"type": "footer", **summary.as_dict()})
-            finally:
-                log.close()
+        with signals_ignored():
+            _stop_quietly(motor)
+            if log is not None:
+                try:
+                    log.write({"type": "footer", **summary.as_dict()})
+                finally:
+                    log.close()
     return summary
+
+
+@contextlib.contextmanager
+def signals_ignored():
+    """Ignores SIGINT and SIGTERM for the block (the car's stop and shutdown): a second
+    Ctrl-C landing there would raise inside it and leave the motors running. Main thread
+    only (elsewhere no handler can be set, nor does a signal land)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in signals}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def _stop_quietly(motor: MotorDriver) -> None:

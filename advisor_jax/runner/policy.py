@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from advisor_jax.contract import spec
+from advisor_jax.runner import signature
 from advisor_jax.runner.errors import PolicyError
 from advisor_jax.runner.policy_meta import (
     check_meta,
@@ -230,16 +231,24 @@ def verify_golden(path: str, layers: Sequence[Layer], golden: dict) -> None:
         )
 
 
-def load_policy(directory: str | os.PathLike) -> Policy:
-    """Reads and verifies an export directory; raises PolicyError on any problem."""
+def load_policy(directory: str | os.PathLike, verify_key: bytes | None = None) -> Policy:
+    """Reads and verifies an export directory; raises PolicyError on any problem.
+
+    With ``verify_key`` the export must carry a valid signature (``signature.py``) of the
+    very bytes of policy.json that are then parsed and checked."""
     directory = os.fspath(directory)
     if not os.path.isdir(directory):
         raise PolicyError(f"{directory}: not a directory (expected an export directory)")
     json_path = os.path.join(directory, POLICY_JSON)
+    json_bytes = _read_bytes(json_path)
+    if verify_key is not None:
+        sig_path = os.path.join(directory, signature.SIGNATURE_FILE)
+        sig_bytes = _read_bytes(sig_path) if os.path.lexists(sig_path) else None
+        signature.verify(sig_path, sig_bytes, json_bytes, verify_key)
     try:
-        meta = json.loads(_read_bytes(json_path).decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise fail(json_path, f"not valid JSON ({e})") from None
+        meta = json.loads(json_bytes.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        raise fail(json_path, f"not valid JSON ({type(e).__name__}: {e})") from None
     check_meta(json_path, meta)
     npz_path = os.path.join(directory, POLICY_NPZ)
     arrays = _load_npz(npz_path, _read_bytes(npz_path), meta["weights_sha256"])

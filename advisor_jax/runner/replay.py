@@ -103,6 +103,7 @@ def replay(
     policy_dir: str | os.PathLike | None = None,
     *,
     tolerance: float = 0.0,
+    verify_key: bytes | None = None,
 ) -> ReplayReport:
     """Re-runs every logged cycle; the report lists mismatches (empty when reproduced).
 
@@ -110,7 +111,8 @@ def replay(
     which no cycle ran the controller: replaying nothing must not read as success.
     """
     header, cycles = read_log(log_path)
-    policy = load_policy(policy_dir if policy_dir is not None else header.get("policy_dir", ""))
+    directory = policy_dir if policy_dir is not None else header.get("policy_dir", "")
+    policy = load_policy(directory, verify_key=verify_key)
     if policy.weights_sha256 != header.get("weights_sha256"):
         raise ReplayError(
             f"policy {policy.directory} (weights {policy.weights_sha256[:12]}…) is not the one "

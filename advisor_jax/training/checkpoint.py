@@ -14,14 +14,28 @@ the check (or that orbax cannot read), restores the newest good one, moves the b
 aside as ``<step>.corrupt`` (so the resumed run can save that step again) and reports it;
 ``load_tree`` refuses corrupt parameters. A directory saved before checksums were recorded
 (or whose save was killed between orbax's commit and the manifest) loads unverified, with
-a warning. Errors are one line: orbax/TensorStore messages are cut to their first line.
+a warning.
+
+Identity. Each ``sha256.json`` also records the run it belongs to (``run``: the
+``run_state.run_identity`` of its config and seeds). Given that identity, ``save_step``,
+``restore_latest`` and ``load_tree`` require the manifest and refuse a directory of another
+run (``ForeignRunError``) instead of skipping a save, resuming from or exporting another
+run's state; the checkpoint of a killed save that lacks its manifest is then set aside like
+a corrupt one, and a deleted ``params/sha256.json`` no longer turns the check off.
+
+Errors are one line: orbax/TensorStore messages are cut to their first line, a failed
+write (a full disk) names the directory and the reason, and orbax's background threads'
+logs and late tracebacks about it are kept off the terminal.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
+import contextlib
+import logging
+import os
+import re
 import shutil
+import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -32,57 +46,19 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.manifest import (  # noqa: F401 (callers reach them from here)
+    CHECKSUMS,
+    ChecksumError,
+    ForeignRunError,
+    check_run,
+    manifest_sha256,
+    read_manifest,
+    record_checksums,
+    verify_checksums,
+)
 
 _KEEP = 2
-CHECKSUMS = "sha256.json"
 _MAX_MESSAGE = 200
-
-
-class ChecksumError(ValueError):
-    """A saved directory's files differ from the checksums recorded when it was saved."""
-
-
-def _file_sha256(path: Path) -> str:
-    with open(path, "rb") as f:
-        return hashlib.file_digest(f, "sha256").hexdigest()
-
-
-def record_checksums(directory: str | Path) -> Path:
-    """Writes ``directory/sha256.json``: the sha256 of every file below ``directory``."""
-    directory = Path(directory)
-    files = {
-        path.relative_to(directory).as_posix(): _file_sha256(path)
-        for path in sorted(directory.rglob("*"))
-        if path.is_file() and path.name != CHECKSUMS
-    }
-    return atomic_write_json(directory / CHECKSUMS, {"algorithm": "sha256", "files": files})
-
-
-def verify_checksums(directory: str | Path) -> bool:
-    """True if every file recorded in ``directory/sha256.json`` is present and unchanged;
-    False if no checksums were recorded (an older save); ChecksumError naming the first
-    bad file otherwise. Files added after the save are ignored (orbax never adds any)."""
-    directory = Path(directory)
-    manifest = directory / CHECKSUMS
-    if not manifest.is_file():
-        return False
-    try:
-        files = json.loads(manifest.read_text())["files"]
-        items = sorted(files.items())
-    except (ValueError, KeyError, TypeError, AttributeError) as e:
-        raise ChecksumError(f"{manifest} is corrupt ({type(e).__name__}: {e})") from None
-    for name, expected in items:
-        path = directory / name
-        if not path.is_file():
-            raise ChecksumError(f"{path} is missing (recorded in {CHECKSUMS} at save time)")
-        actual = _file_sha256(path)
-        if actual != expected:
-            raise ChecksumError(
-                f"{path} has sha256 {actual[:12]}…, not the {str(expected)[:12]}… recorded "
-                "when it was saved (the file was modified or damaged)"
-            )
-    return True
 
 
 def _short(e: BaseException) -> str:
@@ -95,6 +71,48 @@ def _short(e: BaseException) -> str:
 
 def _warn(message: str) -> None:
     warnings.warn(message, stacklevel=3)
+
+
+def _write_failure(what: Path, e: BaseException) -> OSError:
+    """One line for a failed orbax save: 'cannot save DIR: No space left on device'."""
+    code = re.search(r"os_error_code='?(\d+)", str(e))
+    reason = os.strerror(int(code.group(1))) if code else _short(e)
+    return OSError(f"cannot save {what}: {reason}")
+
+
+@contextlib.contextmanager
+def _quiet_orbax():
+    """Keeps orbax's own error logs (absl, from its background threads) off the terminal
+    while it saves: a failure reaches the caller as one exception, worded here. When a
+    write fails, its threads also report on event loops already closed, during the save
+    and after it; those echoes are dropped (``_drop_closed_loop_echoes``)."""
+    _drop_closed_loop_echoes()
+    logger = logging.getLogger("absl")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def _drop_closed_loop_echoes() -> None:
+    """Installs (once) an unraisable-exception hook that drops orbax's "Event loop is closed"
+    RuntimeErrors, raised in TensorStore callbacks when a save fails (61 tracebacks on a
+    full disk), and passes every other unraisable exception on."""
+    previous = sys.unraisablehook
+    if getattr(previous, "_drops_closed_loop_echoes", False):
+        return
+
+    def hook(args):
+        if isinstance(args.exc_value, RuntimeError) and "Event loop is closed" in str(
+            args.exc_value
+        ):
+            return
+        previous(args)
+
+    hook._drops_closed_loop_echoes = True
+    sys.unraisablehook = hook
 
 
 def _manager(directory: Path) -> ocp.CheckpointManager:
@@ -140,21 +158,39 @@ def _uncommitted(x) -> jax.Array:
     return jnp.asarray(np.asarray(x))
 
 
-def save_step(directory: str | Path, step: int, state: Any) -> None:
+def save_step(directory: str | Path, step: int, state: Any, run: dict | None = None) -> None:
     """Saves the full training state at environment step ``step`` (blocking), then records
-    its checksums.
+    its checksums (and ``run``, the run's identity).
 
     If a checkpoint of ``step`` exists already, nothing is written: the run is at the step it
     just saved or resumed from, so the state is that checkpoint's (an interrupt right after a
     periodic save, or before the first chunk after a resume, used to fail on orbax's
-    "Checkpoint for step N already exists").
+    "Checkpoint for step N already exists"). With ``run``, that checkpoint must be this
+    run's (``ForeignRunError`` otherwise: the step of another run is never kept as ours).
     """
-    with _manager(Path(directory)) as manager:
+    directory = Path(directory).absolute()
+    failure = None
+    with _manager(directory) as manager:
         if int(step) in manager.all_steps():
+            if run is not None:
+                existing = directory / str(int(step))
+                check_run(existing, run, read_manifest(existing))
             return
-        manager.save(int(step), args=ocp.args.StandardSave(_storable(state)), force=True)
-        manager.wait_until_finished()
-    record_checksums(Path(directory).absolute() / str(int(step)))
+        try:
+            with _quiet_orbax():
+                manager.save(int(step), args=ocp.args.StandardSave(_storable(state)), force=True)
+                manager.wait_until_finished()
+        except Exception as e:
+            failure = e
+            with contextlib.suppress(Exception):
+                manager.wait_until_finished()  # let no writer thread outlive the failure
+    if failure is not None:
+        # Only now, with the manager closed and its writer threads joined, can no thread
+        # write into the half-written step again after it is removed.
+        for partial in directory.glob(f"{int(step)}.orbax-checkpoint-tmp*"):
+            shutil.rmtree(partial, ignore_errors=True)
+        raise _write_failure(directory / str(int(step)), failure) from None
+    record_checksums(directory / str(int(step)), run)
 
 
 def has_checkpoints(directory: str | Path) -> bool:
@@ -167,14 +203,19 @@ def has_checkpoints(directory: str | Path) -> bool:
 
 
 def restore_latest(
-    directory: str | Path, abstract_state: Any, report: Callable[[str], None] = _warn
+    directory: str | Path,
+    abstract_state: Any,
+    report: Callable[[str], None] = _warn,
+    run: dict | None = None,
 ) -> tuple[Any, int]:
     """Restores the newest good checkpoint into the structure of ``abstract_state``.
 
     A newer checkpoint that fails its checksums or cannot be read is skipped; once an older
     one restores, the skipped ones are renamed ``<step>.corrupt`` and ``report`` is told
     (the default warns). If none restores, ValueError lists every step's problem and
-    nothing is renamed.
+    nothing is renamed. With ``run`` (the run's identity) every checkpoint needs its
+    manifest (one without is skipped like a corrupt one), and a checkpoint of another run
+    raises ``ForeignRunError`` at once: it is not damage to step over.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -188,10 +229,12 @@ def restore_latest(
         for step in steps:
             path = directory / str(step)
             try:
-                unverified = not verify_checksums(path)
+                unverified = not verify_checksums(path, run)
                 target = _storable(abstract_state)
                 stored = manager.restore(step, args=ocp.args.StandardRestore(target))
                 break
+            except ForeignRunError:
+                raise
             except ChecksumError as e:
                 problems.append((step, str(e)))
             except Exception as e:  # orbax raises many types; name the directory instead
@@ -226,34 +269,63 @@ def _set_aside(path: Path) -> Path:
     return aside
 
 
-def save_tree(path: str | Path, tree: Any) -> Path:
-    """Saves a pytree of arrays at ``path`` (replacing an older one only once complete)."""
+def save_tree(path: str | Path, tree: Any, run: dict | None = None) -> Path:
+    """Saves a pytree of arrays at ``path`` (replacing an older one only once complete),
+    with its checksums and, if given, its ``run``'s identity."""
     path = Path(path).absolute()
     tmp = path.with_name(path.name + ".partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    with ocp.StandardCheckpointer(multiprocessing_options=_this_process_only()) as ckptr:
-        ckptr.save(tmp, tree)
-        ckptr.wait_until_finished()
-    record_checksums(tmp)  # inside the directory: renamed together, never out of step
     old = path.with_name(path.name + ".old")
-    if path.exists():
+    for leftover in (tmp, old):  # of a killed save; a link is removed, never followed
+        _remove(leftover)
+    try:
+        with _quiet_orbax():
+            with ocp.StandardCheckpointer(multiprocessing_options=_this_process_only()) as ckptr:
+                ckptr.save(tmp, tree)
+                ckptr.wait_until_finished()
+    except Exception as e:
+        _remove(tmp)
+        raise _write_failure(path, e) from None
+    record_checksums(tmp, run)  # inside the directory: renamed together, never out of step
+    if path.is_symlink() or path.exists():
         path.rename(old)
     tmp.rename(path)
-    shutil.rmtree(old, ignore_errors=True)
+    _remove(old)
     return path
 
 
-def load_tree(path: str | Path, abstract: Any | None = None) -> Any:
+def _remove(path: Path) -> None:
+    """Removes a file, a link (not its target) or a directory tree, if there is one."""
+    if path.is_symlink() or path.is_file():
+        path.unlink()
+    elif path.exists():
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def load_tree(
+    path: str | Path,
+    abstract: Any | None = None,
+    run: dict | None = None,
+    manifest: str | None = None,
+) -> Any:
     """Loads a pytree saved by ``save_tree`` (nested dicts of arrays if no ``abstract``).
 
     Verifies the recorded checksums first: corrupt parameters raise ValueError (one line,
-    naming the file) instead of loading changed weights.
+    naming the file) instead of loading changed weights. With ``run`` the checksums are
+    required and must be that run's (``ForeignRunError``); with ``manifest`` (the sha256
+    run.json recorded for them) ``sha256.json`` itself must be the one saved with the run.
     """
     path = Path(path).absolute()
     if not path.is_dir():
         raise ValueError(f"no saved parameters at {path}")
     try:
-        verified = verify_checksums(path)
+        verified = verify_checksums(path, run)
+        if manifest is not None and manifest_sha256(path) != manifest:
+            raise ChecksumError(
+                f"{path / CHECKSUMS} is not the one saved with this run's run.json (the "
+                "parameters were replaced)"
+            )
+    except ForeignRunError as e:
+        raise ForeignRunError(f"parameters at {path} are not this run's: {e}") from None
     except ChecksumError as e:
         raise ValueError(f"parameters at {path} are corrupt: {e}") from None
     if not verified:

@@ -19,12 +19,15 @@ that ``resume=True`` continues an interrupted run. At the end it writes, into ``
     learning_curve.png, diagnostics.png
     .lock             held (flock) by the running process: pid, host, start time
 
-Safety: every option is checked before anything is written or compiled; the run
-takes ``out_dir`` exclusively (``runlock``); SIGTERM is handled like Ctrl-C (checkpoint,
-status "interrupted", metrics.npz and episodes.csv of the episodes so far); ``resume=True``
-of a run killed before its first checkpoint starts it afresh, and one whose newest
-checkpoint is corrupt resumes from the previous good one (``checkpoint.restore_latest``),
-saying so.
+Safety (docs/reliability.md): every option and size is checked before anything is written
+or compiled (``limits``); the run takes ``out_dir`` exclusively (``runlock``), a new run
+only an empty one, and every saved directory records the run it belongs to (``run_state``,
+``manifest``); Ctrl-C, SIGTERM and SIGHUP are noted and acted on between chunks
+(``interrupts``): checkpoint, status "interrupted", metrics.npz and episodes.csv of the
+episodes so far. ``resume=True`` of a run killed before its first checkpoint starts it
+afresh, one whose newest checkpoint is corrupt resumes from the previous good one
+(``checkpoint.restore_latest``), saying so, one stopped after its training (during the final
+evaluation) only finishes it, and a finished run is left as it is.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ import dataclasses
 import datetime
 import json
 import os
+import signal
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -48,12 +52,15 @@ import envs
 from advisor_jax import __version__
 from advisor_jax.agent.baselines import check_baseline_hparams
 from advisor_jax.agent.config import HParams, TrainConfig
-from advisor_jax.fileio import atomic_write_json
+from advisor_jax.fileio import append_line, atomic_write_json
 from advisor_jax.training import (
     checkpoint,
+    interrupts,
+    limits,
     reporting,
     run_directory,
     run_outputs,
+    run_state,
     runlock,
 )
 from advisor_jax.training.devices import (
@@ -102,8 +109,9 @@ def run_training(
     is ``population_functions(cfg, placement)`` for that placement when the caller already
     compiled it (tests, several runs of one config); None builds it here. Raises
     ValueError for a bad option before anything is written, and ``runlock.RunDirectoryBusy``
-    if another process is training into ``out_dir``. An interrupt (Ctrl-C or SIGTERM) saves
-    a checkpoint and re-raises KeyboardInterrupt (``runlock.Interrupted`` for SIGTERM).
+    if another process is training into ``out_dir``. An interrupt (Ctrl-C, SIGTERM, SIGHUP)
+    saves a checkpoint at the end of the current chunk and raises
+    ``interrupts.Interrupted`` (a KeyboardInterrupt) whose ``detail`` says how to continue.
     ``eval_seed`` keys the evaluation episodes (None: the first seed); runs given the same
     one are evaluated on the same episodes, so their agents can be pooled and paired.
     ``points``: explicit grid points in place of the product of ``grid``'s values
@@ -126,26 +134,34 @@ def run_training(
                 f"unknown {what} {', '.join(map(repr, unknown))}; choose from "
                 f"{', '.join(envs.ARENAS)}"
             )
-    hp, agents = build_population(
-        base_hp, grid, seeds, points
-    )  # checks the seeds and hyperparameters
+    limits.check_episodes(cfg.episodes)
+    hp, agents = build_population(base_hp, grid, seeds, points)  # checks seeds, hyperparameters
+    if eval_episodes:
+        limits.check_eval_episodes(eval_episodes, len(agents))
+    if len(set(eval_arenas)) != len(eval_arenas):
+        raise ValueError(f"an evaluation arena is named twice: {', '.join(eval_arenas)}")
     eval_from = check_seed(seeds[0] if eval_seed is None else eval_seed, "eval_seed")
     baseline = cfg.agent.baseline
     check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
+    program = program or population_functions(cfg, placement)  # built, not yet compiled
+    limits.check_steps(program[0].max_steps, cfg.chunk_steps)
+    keys = agent_keys([a["seed"] for a in agents])
+    abstract = jax.eval_shape(jax.vmap(program[0].init), keys)
+    limits.check_state_fits(abstract, placement.n_devices, placement.n_padded, len(agents))
     if resume and not (out_dir / "run.json").exists():
         raise ValueError(f"nothing to resume: {out_dir / 'run.json'} does not exist")
     lock = runlock.exclusive(out_dir) if is_writer() else contextlib.nullcontext()
-    with lock, runlock.sigterm_as_interrupt():
-        return _train_locked(
-            RunPlan(
-                cfg=cfg, hp=hp, agents=agents, grid=grid, out_dir=out_dir,
-                eval_episodes=eval_episodes, eval_arenas=eval_arenas,
-                checkpoint_every=checkpoint_every, resume=resume, progress=progress,
-                console=console, meta=meta, program=program, placement=placement,
-                eval_from=eval_from,
-            )
+    announce = lambda line: console.print(line, soft_wrap=True, highlight=False)  # noqa: E731
+    with lock, interrupts.stop_requests(announce) as stop:
+        plan = RunPlan(
+            cfg=cfg, hp=hp, agents=agents, grid=grid, out_dir=out_dir,
+            eval_episodes=eval_episodes, eval_arenas=eval_arenas,
+            checkpoint_every=checkpoint_every, resume=resume, progress=progress,
+            console=console, meta=meta, program=program, placement=placement,
+            eval_from=eval_from,
         )  # fmt: skip
+        return _train_locked(plan, stop)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,16 +180,17 @@ class RunPlan:
     progress: bool
     console: Console
     meta: Mapping | None
-    program: tuple | None  # ``population_functions(cfg, placement)``, or None: build it
+    program: tuple  # ``population_functions(cfg, placement)``
     placement: Placement
     eval_from: int  # the evaluation episodes' seed
 
 
-def _train_locked(run: RunPlan) -> dict:
+def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
     """``run_training`` once its options are checked and ``out_dir`` is held.
 
     During training the state is padded and sharded (``devices``); everything written or
-    reported is of the real agents only (``real``), gathered to the host.
+    reported is of the real agents only (``real``), gathered to the host. ``stop`` notes
+    signals; they take effect between chunks (``interrupts``).
 
     Long: the run in the order it happens (start or resume, the chunk loop with its
     checkpoints, an interrupt's checkpoint and partial outputs, the final outputs), so that
@@ -185,11 +202,8 @@ def _train_locked(run: RunPlan) -> dict:
     resume, progress, console, meta = run.resume, run.progress, run.console, run.meta
     program, placement, eval_from = run.program, run.placement, run.eval_from
     run_file = out_dir / "run.json"
-    if run_file.exists() and not resume:
-        raise ValueError(
-            f"{out_dir} already holds a run; pass --resume to continue it or choose another --out"
-        )
-    trainer, init_fn, chunk_fn = program or population_functions(cfg, placement)
+    run_state.check_directory(out_dir, resume)
+    trainer, init_fn, chunk_fn = program
     keys = agent_keys([a["seed"] for a in agents])
     n_agents, n_total = len(agents), cfg.episodes
     writer = is_writer()
@@ -205,7 +219,7 @@ def _train_locked(run: RunPlan) -> dict:
     def save_checkpoint(state):
         host = real(state)  # every process takes part in the gather; process 0 writes
         if writer:
-            checkpoint.save_step(out_dir / "checkpoints", step, host)
+            checkpoint.save_step(out_dir / "checkpoints", step, host, run=identity)
         return host
 
     padded_hp = shard(pad(hp, placement), placement)
@@ -224,23 +238,19 @@ def _train_locked(run: RunPlan) -> dict:
         "agents": agents,
         "status": "running",
     }
+    identity = run_state.run_identity(summary["config"], agents)
+    summary["identity"] = identity
     if trainer.phases is not None:  # a baseline: its phases, RL last (docs/baselines.md)
         summary["phases"] = trainer.phases.describe
-    step = 0
+    step, state, seconds_before = 0, None, 0.0
     log_path = out_dir / "train_log.jsonl"
     if resume:
-        try:
-            saved = json.loads(run_file.read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"cannot resume {out_dir}: {run_file} is corrupt ({e})") from None
-        current = json.loads(json.dumps({"config": summary["config"], "agents": agents}))
-        differences = run_directory.differences({k: saved.get(k) for k in current}, current)
-        if differences:
-            raise ValueError(
-                f"cannot resume {out_dir}: its config or agents differ from these: "
-                + "; ".join(differences)
-            )
-        summary["created"] = saved.get("created", summary["created"])
+        saved = run_state.resume_record(run_file, summary)  # the same run, or ValueError
+        if saved["status"] == "finished":
+            console.print(f"{out_dir} is a finished run: nothing to resume (its files are as "
+                          "they were)")  # fmt: skip
+            return saved
+        seconds_before = saved.get("train_seconds") or 0.0
         if checkpoint.has_checkpoints(out_dir / "checkpoints"):
             abstract = jax.eval_shape(jax.vmap(trainer.init), keys)  # the real agents
             restored = None
@@ -249,36 +259,44 @@ def _train_locked(run: RunPlan) -> dict:
                     out_dir / "checkpoints",
                     abstract,
                     report=lambda m: console.print(f"warning: {m}"),
+                    run=summary.get("identity"),
                 )
                 restored = (state, np.int64(step))
             step_shape = jax.ShapeDtypeStruct((), np.int64)
             state, step = from_writer(restored, (abstract, step_shape))
             state, step = start(state), int(step)
             if writer:
-                run_directory.trim_log(log_path, step)
+                run_directory.trim_log(log_path, step, n_agents)
             console.print(f"resuming {out_dir} at environment step {step}")
         else:  # killed before its first checkpoint: nothing to lose by starting again
-            state = None
             if writer:
                 log_path.unlink(missing_ok=True)
             console.print(f"{out_dir} has no checkpoint yet (stopped before the first one): "
                           "starting it afresh")  # fmt: skip
-    else:
-        state = None
+    done = False
     if state is None:
         state = freeze_padding(init_fn(shard(pad(keys, placement), placement)), placement, n_total)
+    else:
+        done = _all_done(real(state.episodes), real(state.diverged), n_total)
+        if done:
+            console.print(f"{out_dir} finished its training before it stopped: finishing it "
+                          "(final parameters and evaluation), no more training")  # fmt: skip
     if writer:
         atomic_write_json(run_file, summary)
 
     reported = np.zeros(n_agents, bool)
     t_start = time.perf_counter()
     chunks = 0
+
+    def train_seconds():
+        return seconds_before + time.perf_counter() - t_start
+
     try:
+        stop.check()
         with reporting.training_progress(console, n_agents * n_total, disable=not progress) as bar:
-            while step < trainer.max_steps:
-                with runlock.interrupts_deferred():  # the call donates `state`
-                    state, metrics = chunk_fn(state, padded_hp, jnp.int32(step))
-                    step += cfg.chunk_steps
+            while not done and step < trainer.max_steps:
+                state, metrics = chunk_fn(state, padded_hp, jnp.int32(step))  # donates `state`
+                step += cfg.chunk_steps
                 chunks += 1
                 metrics = real(metrics)
                 episodes = np.minimum(real(state.episodes), n_total)
@@ -288,33 +306,45 @@ def _train_locked(run: RunPlan) -> dict:
                 reported |= diverged
                 line = reporting.chunk_line(step, time.perf_counter() - t_start, episodes, metrics)
                 if writer:
-                    with open(log_path, "a") as f:
-                        f.write(json.dumps(line, allow_nan=False) + "\n")
+                    append_line(log_path, json.dumps(line, allow_nan=False))
                 bar.update(int(episodes.sum()), line)
-                if np.all((episodes >= n_total) | diverged):
-                    break
-                if checkpoint_every and chunks % checkpoint_every == 0:
+                done = _all_done(episodes, diverged, n_total)
+                if not done and checkpoint_every and chunks % checkpoint_every == 0:
                     save_checkpoint(state)
+                stop.check()  # the chunk, its log row and its checkpoint are complete
+        seconds = train_seconds()
+        save_checkpoint(state)
+        stop.check()
     except KeyboardInterrupt as e:
         host = save_checkpoint(state)  # gathered by every process, as `real` requires
-        summary.update(status="interrupted", env_steps_per_agent=step)
         if writer:
             run_outputs.write_episode_metrics(out_dir, host, hp, agents, trainer.phases)
-            atomic_write_json(run_file, summary)
-        what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
-        console.print(
-            f"{what} at environment step {step}; checkpoint saved, continue with --resume "
-            f"(--out {out_dir})"
-        )
-        raise
-    train_seconds = time.perf_counter() - t_start
-    save_checkpoint(state)
+        where = f"at environment step {step}: checkpoint saved; continue with --resume"
+        _stopped(e, run_file, summary, step, train_seconds(), where, writer)
     state = real(state)
     if not writer:
         return summary
+    try:
+        return run_outputs.finish_run(
+            out_dir, state, hp, cfg, agents, grid, dict(summary), console, trainer.phases,
+            train_seconds=seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
+            eval_key=eval_key(eval_from), check=stop.check,
+        )  # fmt: skip
+    except KeyboardInterrupt as e:
+        where = ("after training, during the final evaluation: training is complete and "
+                 "saved; --resume finishes the run without training more")  # fmt: skip
+        _stopped(e, run_file, summary, step, seconds, where, writer)
 
-    return run_outputs.finish_run(
-        out_dir, state, hp, cfg, agents, grid, summary, console, trainer.phases,
-        train_seconds=train_seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
-        eval_key=eval_key(eval_from),
-    )  # fmt: skip
+
+def _stopped(signal_error, run_file, summary, step, seconds, where, writer):
+    """Records an interrupted run in run.json and raises ``Interrupted`` saying ``where``."""
+    summary.update(status="interrupted", env_steps_per_agent=step, train_seconds=round(seconds, 2))
+    if writer:
+        atomic_write_json(run_file, summary)
+    signum = getattr(signal_error, "signum", signal.SIGINT)
+    raise interrupts.Interrupted(signum, f"{where} (--out {run_file.parent})") from None
+
+
+def _all_done(episodes: np.ndarray, diverged: np.ndarray, n_total: int) -> bool:
+    """Whether every agent has played its episodes or is frozen (diverged)."""
+    return bool(np.all((np.asarray(episodes) >= n_total) | np.asarray(diverged)))

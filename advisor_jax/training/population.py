@@ -11,6 +11,7 @@ seed, so the whole population is one ``vmap`` and one compile:
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -19,6 +20,7 @@ import numpy as np
 
 from advisor_jax.agent.hparams import HPARAM_NAMES
 from advisor_jax.agent.settings import flat_fields, flat_items, from_flat, replace_flat, validate
+from advisor_jax.training.limits import check_agents
 
 SEED_MAX = 2**64 - 1
 """Seeds are 64-bit: ``seed_key`` puts both 32-bit halves into the threefry key."""
@@ -28,7 +30,8 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
     """``["beta=0.01,0.1", "gamma=0.9"]`` → ``{"beta": [0.01, 0.1], "gamma": [0.9]}``.
 
     A name given twice is refused (naming ``option`` and both items) rather than silently
-    keeping the last one.
+    keeping the last one, and so is a value listed twice for one name (``beta=0.1,0.1``
+    would train identical agents as two grid points).
     """
     grid: dict[str, list[float]] = {}
     given: dict[str, str] = {}
@@ -50,6 +53,12 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
             grid[name] = [float(v) for v in values.split(",")]
         except ValueError:
             raise ValueError(f"non-numeric value in {item!r}") from None
+        twice = sorted({v for v in grid[name] if grid[name].count(v) > 1})
+        if twice:
+            raise ValueError(
+                f"{option} {item!r} lists {', '.join(f'{v:g}' for v in twice)} more than once: "
+                "those grid points would train identical agents; give each value once"
+            )
     return grid
 
 
@@ -70,14 +79,20 @@ def build_population(
     """
     if not seeds:
         raise ValueError("need at least one seed")
-    for seed in seeds:
-        check_seed(seed)
     fields = flat_fields(base)
     for name, values in grid.items():
         if name not in fields:
             raise ValueError(f"unknown hyperparameter {name!r}")
         if len(values) == 0:
             raise ValueError(f"empty value list for {name!r}")
+        if len(set(map(float, values))) != len(values):
+            raise ValueError(f"a value of {name!r} is listed twice in the grid: {list(values)}")
+    n_points = len(points) if points is not None else math.prod(len(v) for v in grid.values())
+    check_agents(len(seeds) * n_points)
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"a seed is listed twice: {list(seeds)}")
+    for seed in seeds:
+        check_seed(seed)
     names = list(grid)
     combos = list(itertools.product(*(grid[n] for n in names)))
     if points is not None:

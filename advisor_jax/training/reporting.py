@@ -195,10 +195,37 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
         return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
+def is_chunk_row(row, n_agents: int) -> bool:
+    """Whether ``row`` (a parsed line of train_log.jsonl) is a chunk's row of ``n_agents``
+    agents, as ``chunk_line`` writes it."""
+    if not isinstance(row, dict) or type(row.get("step")) is not int:
+        return False
+    per_agent = row.get("per_agent", {})
+    return isinstance(per_agent, dict) and all(
+        isinstance(v, list)
+        and len(v) == n_agents
+        and all(x is None or (isinstance(x, int | float) and not isinstance(x, bool)) for x in v)
+        for v in per_agent.values()
+    )
+
+
 def read_training_log(log_path: Path, n_agents: int) -> dict[str, np.ndarray]:
     """The per-agent series of ``train_log.jsonl``: ``{"step": [chunks], name: [agents,
-    chunks]}`` with NaN where a chunk had no value (strict-JSON ``None``)."""
-    lines = [json.loads(t) for t in log_path.read_text().splitlines()] if log_path.exists() else []
+    chunks]}`` with NaN where a chunk had no value (strict-JSON ``None``). ValueError naming
+    the file and line if a line is not a chunk row of ``n_agents`` agents."""
+    lines = []
+    text = log_path.read_text(errors="replace") if log_path.exists() else ""
+    for number, raw in enumerate(text.splitlines(), 1):
+        try:
+            row = json.loads(raw)
+        except (ValueError, RecursionError):
+            row = None
+        if not is_chunk_row(row, n_agents):
+            raise ValueError(
+                f"{log_path}:{number} is not a row of this run's training log ({n_agents} "
+                "agents): the file was edited or mixed with another run's"
+            )
+        lines.append(row)
     out = {"step": np.array([line["step"] for line in lines], np.int64)}
     names = {name for line in lines for name in line.get("per_agent", {})}
     for name in sorted(names):

@@ -20,6 +20,7 @@ from advisor_jax.agent.baselines import (
 from advisor_jax.agent.config import PRESETS, preset
 from advisor_jax.agent.hparams import PRIOR_HPARAMS, HParams
 from advisor_jax.agent.settings import describe, replace_flat
+from advisor_jax.training.limits import check_agents, check_episodes
 from advisor_jax.training.population import (
     SEED_MAX,
     build_population,
@@ -156,6 +157,7 @@ def build_run(args: TrainArgs):
         raise ValueError(f"unknown preset {args.preset!r}; choose one of {', '.join(PRESETS)}")
     if args.seeds <= 0:
         raise ValueError(f"--seeds must be a positive integer, got {args.seeds}")
+    check_agents(args.seeds)  # before the list of seeds is built
     check_seed(args.seed, "--seed")
     if args.seed + args.seeds - 1 > SEED_MAX:
         raise ValueError(
@@ -189,6 +191,7 @@ def build_run(args: TrainArgs):
         if getattr(args, name) is not None
     }  # fmt: skip
     cfg = dataclasses.replace(cfg, **train_overrides)
+    check_episodes(cfg.episodes)
     overrides = parse_assignments(args.hp, "--hp")
     for name, values in overrides.items():
         if len(values) != 1:

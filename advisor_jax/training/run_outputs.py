@@ -31,13 +31,20 @@ def write_episode_metrics(out_dir, state, hp, agents, phases=None):
 
 
 def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, *,
-               train_seconds, eval_episodes, eval_arenas, eval_key) -> dict:  # fmt: skip
+               train_seconds, eval_episodes, eval_arenas, eval_key,
+               check=lambda: None) -> dict:  # fmt: skip
     """Final parameters, metrics, evaluation, figures and the summary (process 0, host
-    state of the real agents); returns the summary written to run.json."""
+    state of the real agents); returns the summary written to run.json. ``check`` is called
+    between the stages (``interrupts.StopRequest.check``: a signal stops the run there);
+    every stage rewrites its files whole, so a resumed run repeats them from the start."""
     n_total = cfg.episodes
     run_file = out_dir / "run.json"
+    check()
     extra = {} if phases is None else phases.params(state)
-    checkpoint.save_tree(out_dir / "params", final_params(state, cfg, extra))
+    params = checkpoint.save_tree(
+        out_dir / "params", final_params(state, cfg, extra), summary.get("identity")
+    )
+    summary["params_sha256"] = checkpoint.manifest_sha256(params)
     metrics, series = write_episode_metrics(out_dir, state, hp, agents, phases)
     evaluation = {}
     if eval_episodes:
@@ -47,23 +54,20 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
             )
             for arena in eval_arenas
         }
-        evaluation = evaluate_population(
-            evaluators,
-            state.learner.actor,
-            key=eval_key,
-            diverged=np.asarray(state.diverged),
-        )
+        evaluation = _evaluate(evaluators, state.learner.actor, eval_key, state.diverged, check)
         atomic_write_json(out_dir / "eval.json", evaluation)
         for k, n in enumerate(cfg.snapshot_episodes):  # the same episodes as eval.json
             snaps = state.snapshots
-            at_n = evaluate_population(
+            at_n = _evaluate(
                 evaluators,
                 jax.tree.map(lambda p: p[:, k], snaps.actor),  # noqa: B023
-                key=eval_key,
-                diverged=np.asarray(snaps.diverged[:, k] | ~snaps.taken[:, k]),
+                eval_key,
+                snaps.diverged[:, k] | ~snaps.taken[:, k],
+                check,
             )
             atomic_write_json(out_dir / f"eval_episode{n}.json", at_n)
             summary.setdefault("evaluation_at_episode", {})[str(n)] = at_n
+    check()
     plots.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
     plots.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
 
@@ -79,6 +83,15 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
     atomic_write_json(run_file, summary)
     reporting.print_summary(console, summary, metrics, grid)
     return summary
+
+
+def _evaluate(evaluators, actor, key, diverged, check) -> dict:
+    """``evaluate_population`` one arena at a time, with ``check`` before each."""
+    out = {}
+    for arena, evaluator in evaluators.items():
+        check()
+        out |= evaluate_population({arena: evaluator}, actor, key, np.asarray(diverged))
+    return out
 
 
 def final_params(state, cfg, extra: dict | None = None) -> dict:

@@ -13,9 +13,10 @@ lock file left behind never blocks a later run and needs no cleaning; it is neve
 holds the old one). flock is reliable on local file systems; on NFS it depends on the
 server, which is why the message names the host.
 
-``sigterm_as_interrupt()`` turns SIGTERM into ``Interrupted`` (a KeyboardInterrupt) while a
-run holds its directory, so a kill, systemd or a batch scheduler saves a checkpoint as
-Ctrl-C does instead of losing the run.
+The lock file is opened without following a link (``O_NOFOLLOW``) and must be a regular
+file with one name: a ``.lock`` that is a symbolic or hard link to a file outside ``--out``
+would otherwise be truncated and overwritten with the holder record. Signals while a run
+holds its directory: ``interrupts``.
 """
 
 from __future__ import annotations
@@ -25,11 +26,12 @@ import datetime
 import fcntl
 import json
 import os
-import signal
 import socket
-import threading
 from collections.abc import Iterator
 from pathlib import Path
+
+from advisor_jax.fileio import open_no_follow
+from advisor_jax.training.interrupts import Interrupted  # noqa: F401 (its old home)
 
 LOCK_FILE = ".lock"
 
@@ -56,9 +58,12 @@ def exclusive(out_dir: str | os.PathLike) -> Iterator[dict]:
     in this one) holds it.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OSError(f"--out {out_dir} exists and is not a directory") from None
     path = out_dir / LOCK_FILE
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = open_no_follow(path, os.O_RDWR | os.O_CREAT)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -77,62 +82,3 @@ def exclusive(out_dir: str | os.PathLike) -> Iterator[dict]:
         yield info
     finally:
         os.close(fd)  # releases the lock
-
-
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM (``signum``) during training: handled like Ctrl-C's KeyboardInterrupt."""
-
-    def __init__(self, signum: int):
-        super().__init__(f"signal {signum}")
-        self.signum = signum
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt():
-    """Turns SIGTERM (kill, systemd, a batch scheduler) into ``Interrupted`` while training,
-    so that it saves a checkpoint like Ctrl-C instead of losing the run. Signal handlers
-    can only be set from the main thread; elsewhere SIGTERM keeps its handler."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        raise Interrupted(signum)
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@contextlib.contextmanager
-def interrupts_deferred():
-    """Holds SIGINT and SIGTERM back until the block ends, then raises what came.
-
-    The jitted training chunk donates its input state: once called, the old state's
-    buffers are gone. A Ctrl-C or SIGTERM that lands between the call taking them and
-    returning the new state (during a compile, or while the dispatch waits for a full
-    queue) would leave the run with no state to checkpoint ("Array has been deleted",
-    seen on an H100 on 2026-11-23). Inside this block such a signal is only noted; at the
-    end the handler that was in force (KeyboardInterrupt, ``Interrupted``) runs, when the
-    new state is in hand. Elsewhere than the main thread signals keep their handlers."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    signals = (signal.SIGINT, signal.SIGTERM)
-    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in signals}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    if caught:
-        handler = previous[caught[0]]
-        if callable(handler):
-            handler(caught[0], None)
-        elif handler == signal.SIG_DFL:  # default action (SIGINT's is KeyboardInterrupt)
-            if caught[0] == signal.SIGINT:
-                raise KeyboardInterrupt
-            signal.raise_signal(caught[0])

@@ -165,9 +165,11 @@ def test_onnx_parity(tmp_path, actor_params, policy):
     assert got.shape == (len(obs), 2)
     assert np.abs(got - actions).max() <= 1e-5
     assert np.abs(got - policy.act(obs)).max() <= 1e-5
-    # Re-exporting without ONNX removes the now stale model.
-    export_test_actor(actor_params, tmp_path, golden_obs=np.zeros((0, 20)))
-    assert not (tmp_path / "policy.onnx").exists()
+    # An export never writes over another one (no stale model can be left beside new files).
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    with pytest.raises(ExportError, match="is not empty: an export never writes over files"):
+        export_test_actor(actor_params, tmp_path, golden_obs=np.zeros((0, 20)))
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     load_policy(tmp_path)
 
 

@@ -28,6 +28,7 @@ def controller(policy, drive=None, **loop):
 
 def run(ctrl, scans, poses, clock, tmp_path, motor=None):
     motor = motor or RecordingMotor()
+    (tmp_path / "run.jsonl").unlink(missing_ok=True)  # a log is a new file (never reused)
     log = JsonlLog(tmp_path / "run.jsonl")
     log.write(log_header(ctrl, ctrl.policy))
     summary = run_loop(ctrl, scans, poses, motor, log=log, clock=clock, sleep=clock.sleep)

@@ -145,12 +145,12 @@ RUN_SEEDS = [0, 1, 2, 3, 4]
 RUN_HP = HParams(lr_actor=1e-3, advisor_episodes=1.0)
 
 
-def train_tiny(out, program, **kw):
-    """A TINY run of RUN_SEEDS into ``out`` with the session's compiled ``program``."""
+def train_tiny(out, program, seeds=RUN_SEEDS, **kw):
+    """A TINY run of ``seeds`` into ``out`` with the session's compiled ``program``."""
     from advisor_jax.training.host_loop import run_training
 
     kw = {"eval_episodes": 0, "checkpoint_every": 0, "progress": False, **kw}
-    return run_training(TINY, RUN_HP, {}, RUN_SEEDS, out, program=program, **kw)
+    return run_training(TINY, RUN_HP, {}, seeds, out, program=program, **kw)
 
 
 @pytest.fixture(scope="session")

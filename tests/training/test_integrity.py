@@ -22,7 +22,7 @@ import pytest
 
 from advisor_jax.cli.main import main as cli_main
 from advisor_jax.cli.train import TrainArgs, build_run
-from advisor_jax.training import checkpoint, reporting, runlock
+from advisor_jax.training import checkpoint, interrupts, reporting, runlock
 from advisor_jax.training.host_loop import run_training
 from advisor_jax.training.population import agent_keys, parse_assignments, seed_key
 from advisor_jax.training.runlock import Interrupted
@@ -218,12 +218,14 @@ def test_a_signal_inside_the_donating_chunk_call_still_saves_a_checkpoint(tmp_pa
     assert checkpoint.verify_checksums(out / "checkpoints" / str(TINY.chunk_steps))
 
 
-def test_interrupts_deferred_holds_a_signal_until_the_block_ends():
+def test_stop_requests_hold_a_signal_until_checked():
     ran_on = []
-    with pytest.raises(KeyboardInterrupt), runlock.interrupts_deferred():
+    with interrupts.stop_requests() as stop:
         os.kill(os.getpid(), signal.SIGINT)
         ran_on.append(True)  # the signal did not stop the block
-    assert ran_on == [True]
+        with pytest.raises(Interrupted) as info:
+            stop.check()
+    assert ran_on == [True] and info.value.signum == signal.SIGINT
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
