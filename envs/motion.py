@@ -41,9 +41,10 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
+from advisor_jax.contract import spec
 from envs.mjcf import mjx
 
-MOTION_MODELS: tuple[str, ...] = ("kinematic", "mjx")
+MOTION_MODELS: tuple[str, ...] = spec.MOTION_MODELS  # ("kinematic", "mjx")
 # ω_max (rad/s) of each model when not given: the paper leaves it open; calibrated on the
 # advisor (results/advisor.md, docs/arena_calibration.md). 5 rad/s ≈ the P3DX's 300°/s.
 DEFAULT_OMEGA_MAX: dict[str, float] = {"kinematic": 3.0, "mjx": 5.0}
