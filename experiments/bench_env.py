@@ -305,7 +305,12 @@ def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     ]
     for run in runs:
         lines += _section(run)
-    common.write_markdown(out.with_suffix(".md"), lines)
+    # Hand-written readings ("## Reading ..." to the end) survive the regeneration.
+    md = out.with_suffix(".md")
+    old = md.read_text() if append and md.exists() else ""
+    if "\n## Reading" in old:
+        lines += ["", *old[old.index("\n## Reading") + 1 :].rstrip("\n").splitlines()]
+    common.write_markdown(md, lines)
 
 
 def _section(result: dict) -> list[str]:
