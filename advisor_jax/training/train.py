@@ -132,7 +132,7 @@ def make_train(cfg: TrainConfig, steady: bool = False) -> Trainer:
     built where it exists: a paper agent (no baseline schedule) with one update per step or
     no delay, and chunks a whole number of delay periods long."""
     agent = cfg.agent
-    env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)  # 0: arena's
+    env = envs.make_env(cfg.arena, motion=cfg.motion, max_episode_steps=cfg.max_episode_steps)
     advisor = arena_advisor(env)
     learner = make_learner(agent, functools.partial(return_bounds, env.config))
     actor = make_actor(agent.actor_hidden)
