@@ -11,7 +11,9 @@ same arena setting, and writes one compact JSON (and a table) of the success, co
 and timeout rates and collision speeds: mean and 95 % interval over seeds.
 
 Run directories go to ``<runs>/<candidate>/<preset>``; a finished one is reused, an
-interrupted one resumed, so the study may be split over several calls.
+interrupted one resumed, and ``<out>.json`` keeps the rows of earlier calls with the same
+study settings (the advisor's too), so the study may be split over several calls, e.g.
+one per candidate and preset.
 
     python experiments/calibrate_arena.py --date 2026-11-26   # GPU (docs/arena_calibration.md)
     python experiments/calibrate_arena.py --candidates mjx --presets quick --seeds 1 \\
@@ -22,6 +24,7 @@ interrupted one resumed, so the study may be split over several calls.
 from __future__ import annotations
 
 import dataclasses
+import json
 import pathlib
 import sys
 
@@ -132,27 +135,52 @@ def evaluate_advisor(args: Args, candidate: str) -> dict:
     return {"candidate": candidate, "arenas": out}
 
 
+# What makes two calls one study: everything but which candidates and presets they run.
+STUDY_KEYS = ("agent", "seeds", "episodes", "max_episode_steps", "precision", "eval_episodes",
+              "advisor_episodes", "arenas", "eval_seed")  # fmt: skip
+
+
+def earlier_rows(args: Args) -> tuple[list[dict], list[dict]]:
+    """(advisor rows, DDPG rows) of ``<out>.json`` written by calls of the same study."""
+    path = pathlib.Path(args.out).with_suffix(".json")
+    if not path.exists():
+        return [], []
+    saved = json.loads(path.read_text())
+    now = json.loads(json.dumps(dataclasses.asdict(args)))  # tuples as lists, as saved
+    if any(saved.get("settings", {}).get(k) != now[k] for k in STUDY_KEYS):
+        return [], []  # another study: this call starts the file afresh
+    return saved.get("advisor", []), saved.get("ddpg", [])
+
+
 def main(args: Args) -> dict:
     for candidate in args.candidates:  # a bad setting fails before anything trains
         envs.make_env("training", motion=candidate)
     where = common.provenance()
+    advisor_rows, ddpg_rows = earlier_rows(args)
     result = {
         **where,
         "date": args.date or where["date"],
         "command": common.command_line("experiments/calibrate_arena.py", sys.argv[1:]),
         "settings": dataclasses.asdict(args),
         "paper": {"DDPG": PAPER_DDPG, "advisor": PAPER_ADVISOR},
-        "advisor": [],
-        "ddpg": [],
+        "advisor": advisor_rows,
+        "ddpg": ddpg_rows,
     }
+    out = pathlib.Path(args.out)
     for candidate in args.candidates:
-        result["advisor"].append(evaluate_advisor(args, candidate))
-        print(result["advisor"][-1], flush=True)
+        if not any(row["candidate"] == candidate for row in result["advisor"]):
+            result["advisor"].append(evaluate_advisor(args, candidate))
+            print(result["advisor"][-1], flush=True)
         for preset_name in args.presets:
-            result["ddpg"].append(train_ddpg(args, candidate, preset_name))
-            print({k: v for k, v in result["ddpg"][-1].items() if k != "run_dir"}, flush=True)
-            write(result, pathlib.Path(args.out))  # after every population: nothing is lost
-    write(result, pathlib.Path(args.out))
+            row = train_ddpg(args, candidate, preset_name)
+            result["ddpg"] = [
+                r
+                for r in result["ddpg"]
+                if (r["candidate"], r["preset"]) != (candidate, preset_name)
+            ] + [row]
+            print({k: v for k, v in row.items() if k != "run_dir"}, flush=True)
+            write(result, out)  # after every population: nothing is lost
+    write(result, out)
     return result
 
 

@@ -44,3 +44,13 @@ def test_smoke_trains_and_evaluates(tmp_path):
     table = (tmp_path / "result.md").read_text()
     assert "| DDPG | `mjx:wheel_torque_max=0.5` | quick |" in table
     assert "| advisor | `mjx:wheel_torque_max=0.5` | – |" in table
+
+
+def test_a_later_call_of_the_same_study_keeps_the_earlier_rows(tmp_path):
+    args = calibrate_arena.Args(candidates=("mjx",), presets=("paper",), out=str(tmp_path / "r"))
+    settings = json.loads(json.dumps(calibrate_arena.dataclasses.asdict(args)))
+    rows = {"advisor": [{"candidate": "kinematic"}], "ddpg": [{"candidate": "kinematic"}]}
+    (tmp_path / "r.json").write_text(json.dumps({"settings": settings, **rows}))
+    assert calibrate_arena.earlier_rows(args) == (rows["advisor"], rows["ddpg"])
+    other = calibrate_arena.dataclasses.replace(args, seeds=4)  # another study
+    assert calibrate_arena.earlier_rows(other) == ([], [])
