@@ -22,9 +22,10 @@ the parameters and their sources: docs/arena_calibration.md):
 
   The body is planar (slide x, slide y, hinge yaw), so ``qpos`` is the pose and
   ``qvel`` = (ẋ, ẏ, θ̇) its world-frame velocity and yaw rate; the state carries ``qvel``.
-  Wheel contact with the floor is not simulated (MJX contacts at dt = 0.05 s would need
-  millisecond steps); the two wheels act where they touch the ground, and a rolling
-  wheel's side grip is the dead-beat damper.
+  Wheel contact with the floor is not simulated (wheels rolling through MJX contacts are
+  not physical at dt = 0.05 s and far costlier at short steps: results/wheel_contacts.md);
+  the two wheels act where they touch the ground, and a rolling wheel's side grip is the
+  dead-beat damper.
 
 The speed never exceeds the commanded V ≤ v_max under either model: the wheel servos pull
 the mean wheel speed monotonically towards V (k_v h ≤ the stable, overshoot-free bound)

@@ -272,10 +272,10 @@ def test_footprint_collision_and_goal_still_end_episodes(msim):
     assert out.outcome[0] == GOAL and out.terminal[0]
 
 
-@pytest.mark.parametrize("arena", ("training", "procedural"))
-def test_vmapped_mjx_step_equals_lone_steps(msim, arena):
+def test_vmapped_mjx_step_equals_lone_steps(msim, arena="procedural"):
     """Six envs, random actions, steps forced near the timeout so that auto-resets happen:
-    the batched step equals six lone ``env.step`` calls field by field."""
+    the batched step equals six lone ``env.step`` calls field by field. In the procedural
+    arena, whose per-env model (boxes) and spawns are the most that vmap can get wrong."""
     env = msim.env(arena)
     lone = jax.jit(env.step)
     states = jax.tree_util.tree_map(lambda x: x[:6], msim.resets(arena))
