@@ -26,13 +26,13 @@ import pathlib
 import re
 import sys
 
-import common
 import jax
 import jax.numpy as jnp
 import numpy as np
 import tyro
 
 import envs
+from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 
 
@@ -130,7 +130,7 @@ def bench_step(env, n: int, steps: int, repeats: int) -> dict:
         state, done = jax.lax.scan(body, state, None, length=steps)
         return state, jnp.mean(done)
 
-    first, best = common.first_and_best(lambda: run(state, action), repeats)
+    first, best = measure.first_and_best(lambda: run(state, action), repeats)
     _, done_rate = run(state, action)
     per_env_state = sum(x.nbytes for x in jax.tree_util.tree_leaves(state)) / n
     cost = _cost(jax.jit(step), state, action)  # one step: XLA counts a scan body once
@@ -217,7 +217,7 @@ def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
     for name, fn, args in parts:
         if "not used" in name and env.procedural:
             continue  # needs the per-env model; the fixed-arena comparison suffices
-        _, best = common.first_and_best(functools.partial(fn, *args), repeats)
+        _, best = measure.first_and_best(functools.partial(fn, *args), repeats)
         out[name] = {"steps_per_s": n * steps / best, "seconds": best}
     return out
 
@@ -244,13 +244,13 @@ def check_parity(env, poses: int = 100) -> float:
 
 def main(args: Args) -> dict:
     models = [envs.make_env(args.arena, motion=m) for m in args.motions]
-    where = common.provenance()
+    where = measure.provenance()
     result = {
         **where,
         "arena": args.arena,
         "device": f"{where['backend']}: {where['device']}",  # the format of the runs recorded
         "date": args.date or where["date"],
-        "command": common.command_line("experiments/bench_env.py", sys.argv[1:]),
+        "command": writing.command_line("experiments/bench_env.py", sys.argv[1:]),
         "steps_per_scan": args.steps,
         "rows": [],
     }
@@ -278,8 +278,8 @@ def main(args: Args) -> dict:
         atomic_write_text(args.out + "_hlo.txt", hlo)
     if args.ceiling:
         result["ceiling"] = {  # 1 GiB; 8192² fp32 at JAX's default precision
-            "copy_bytes_per_s": common.copy_ceiling(2**30, args.repeats),
-            "matmul_flops_per_s": common.matmul_ceiling(8192, args.repeats),
+            "copy_bytes_per_s": measure.copy_ceiling(2**30, args.repeats),
+            "matmul_flops_per_s": measure.matmul_ceiling(8192, args.repeats),
         }
         print("ceiling", result["ceiling"], flush=True)
     write(result, pathlib.Path(args.out), append=args.append)
@@ -310,7 +310,7 @@ def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     old = md.read_text() if append and md.exists() else ""
     if "\n## Reading" in old:
         lines += ["", *old[old.index("\n## Reading") + 1 :].rstrip("\n").splitlines()]
-    common.write_markdown(md, lines)
+    writing.write_markdown(md, lines)
 
 
 def _section(result: dict) -> list[str]:
@@ -322,7 +322,7 @@ def _section(result: dict) -> list[str]:
         f"date {result['date']}; {result['steps_per_scan']} steps per scan",
         f"- command: `{result['command']}`",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("motion", "envs", "M steps/s", "done/step", "state B/env", "kernel I/O B/step",
              "XLA FLOP/step", "XLA B accessed/step"),
             [(r.get("motion", "kinematic"), r["envs"], r["steps_per_s"] / 1e6,

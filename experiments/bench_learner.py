@@ -29,19 +29,19 @@ import itertools
 import sys
 from pathlib import Path
 
-import common
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.agent import networks
-from advisor_jax.agent.compiler_options import compiler_options
 from advisor_jax.agent.config import HParams, parse_agent
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
-from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init, replay_sample
+from advisor_jax.agent.replay_buffer import replay_sample
+from advisor_jax.bench import measure, writing
+from advisor_jax.bench.learner_loop import SMALL, fill_replay, make_update_loop
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.program import twin_inputs_per_critic
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
@@ -54,8 +54,6 @@ def dense_macs(sizes: list[tuple[int, int]]) -> int:
 
 
 # --small: tiny networks for a CPU smoke run (AgentConfig overrides).
-SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
-             buffer_size=4096, batch_size=128)  # fmt: skip
 
 
 def analytic_flops_per_update(cfg) -> float:
@@ -97,44 +95,6 @@ def xla_flops_per_update(cfg, learner, replay) -> float:
     return critic + actor / cfg.delay
 
 
-def make_update_loop(cfg, n_updates: int, steady: bool = False):
-    """``n_updates`` calls of ``Learner.update``, the exact step training runs, in a scan,
-    each update deciding its delayed actor step by ``lax.cond`` and compiled with XLA's
-    scheduling, as training's general program runs it.
-
-    ``steady``: the loop as the latency-bound program (populations of at most
-    ``host_loop.LATENCY_BOUND_AGENTS``) runs its updates instead: blocks of d updates
-    written out in a row whose first takes the actor step, no conditional, overlapping
-    kernels and a whole-loop graph. Timed alone that way the update ran slower, not faster
-    (1 agent, bf16, H100: 1,356-2,339 agent-updates/s against 3,121;
-    ``results/bench_train_steady/``): the program pays in the full step, where the
-    collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
-    learner = make_learner(cfg)
-    hp = HParams()
-    steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
-
-    def one_agent(learner_state, replay, key):
-        def update(carry, u, actor=None):
-            state, key = carry
-            key, k_sample, k_critic = jax.random.split(key, 3)
-            state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u, 0, actor)
-            return (state, key), None
-
-        def block(carry, u):  # d updates from u, a multiple of d, written out as training's
-            for j in range(delay):
-                carry, _ = update(carry, u + j, actor=j == 0)
-            return carry, None
-
-        body, starts = (
-            (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
-        )
-        (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), starts)
-        return learner_state
-
-    options = compiler_options(cfg.precision, overlap=steady, steady=steady)  # as training's
-    return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)
-
-
 def time_update_loop(loop, states, replays, keys) -> tuple[float, float]:
     """(seconds of the first call, best of the 3 after it) of ``make_update_loop``'s loop,
     which donates ``states``: every call runs on the previous call's output."""
@@ -144,7 +104,7 @@ def time_update_loop(loop, states, replays, keys) -> tuple[float, float]:
         states = loop(states, replays, keys)
         return states
 
-    return common.first_and_best(call, 3)
+    return measure.first_and_best(call, 3)
 
 
 def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
@@ -153,7 +113,8 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
 
     from advisor_jax.agent.networks import apply_critics, make_critic
 
-    learner = make_learner(cfg)
+    per_critic = twin_inputs_per_critic()
+    learner = make_learner(cfg, inputs_per_critic=per_critic)
     hp = HParams()
     critic = make_critic(cfg, cfg.precision)
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
@@ -166,7 +127,7 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     )
 
     def critic_loss(params, batch):
-        q = apply_critics(critic, params, batch.obs, batch.action)
+        q = apply_critics(critic, params, batch.obs, batch.action, per_critic)
         return jnp.mean(jnp.square(q - batch.reward))
 
     pieces = {
@@ -189,23 +150,10 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
             return jax.lax.scan(body, jnp.float32(0), jnp.arange(n_iters))[0]
 
         f = jax.jit(jax.vmap(loop))
-        _, best = common.first_and_best(lambda f=f: f(states, replays, batches, keys), 3)
+        _, best = measure.first_and_best(lambda f=f: f(states, replays, batches, keys), 3)
         rows.append((name, best / (n_agents * n_iters)))
         print(f"  {name:15s} {1e6 * rows[-1][1]:8.1f} µs per agent-iteration")
     return rows
-
-
-def fill_replay(capacity: int, key) -> object:
-    k1, k2, k3 = jax.random.split(key, 3)
-    data = Transition(
-        obs=jax.random.uniform(k1, (capacity, spec.OBS_SIZE)),
-        action=jax.random.uniform(k2, (capacity, spec.ACTION_SIZE)),
-        advisor_action=jax.random.uniform(k3, (capacity, spec.ACTION_SIZE)),
-        reward=jnp.zeros(capacity),
-        next_obs=jax.random.uniform(k1, (capacity, spec.OBS_SIZE)),
-        terminal=jnp.zeros(capacity),
-    )
-    return replay_add(replay_init(capacity), data)
 
 
 def main() -> None:
@@ -227,35 +175,25 @@ def main() -> None:
                         help="time the update loop as the latency-bound training program "
                              "compiles it (make_update_loop's steady); not passed to "
                              "--reference")  # fmt: skip
-    parser.add_argument("--bias-in-gemm", action="store_true",
-                        help="hidden layers add their bias inside the matmul "
-                             "(networks.BIAS_IN_GEMM); not passed to --reference")  # fmt: skip
-    parser.add_argument("--width-align", type=int, default=1, metavar="N",
-                        help="hidden widths computed padded to a multiple of N "
-                             "(networks.WIDTH_ALIGN); not passed to --reference")  # fmt: skip
     args = parser.parse_args()
-    networks.BIAS_IN_GEMM = networks.BIAS_IN_GEMM or args.bias_in_gemm
-    if args.width_align < 1:
-        parser.error(f"--width-align must be ≥ 1, got {args.width_align}")
-    networks.WIDTH_ALIGN = args.width_align
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
                 "--updates", str(args.updates), "--precision", *args.precision,
                 *(["--small"] if args.small else [])]  # fmt: skip
         print(f"reference: {args.reference}")
-        reference = common.run_reference(
+        reference = measure.run_reference(
             args.reference, "bench_learner.py", argv, "bench_learner.json"
         )
 
     cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
-    where = common.provenance()
+    where = measure.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
     size = 2048 if args.small else 8192
-    ceilings = {p: common.matmul_ceiling(size, dtype=PRECISIONS[p]) / 1e12 for p in args.precision}
-    ceiling_tflops = ceilings.get("fp32") or common.matmul_ceiling(size) / 1e12
-    copy_gbs = common.copy_ceiling((64 if args.small else 2048) * 2**20) / 1e9
+    ceilings = {p: measure.matmul_ceiling(size, dtype=PRECISIONS[p]) / 1e12 for p in args.precision}
+    ceiling_tflops = ceilings.get("fp32") or measure.matmul_ceiling(size) / 1e12
+    copy_gbs = measure.copy_ceiling((64 if args.small else 2048) * 2**20) / 1e9
     print(f"ceilings: matmul {ceilings} TFLOP/s, copy {copy_gbs:.0f} GB/s")
     analytic = analytic_flops_per_update(cfg) * cfg.batch_size
 
@@ -291,13 +229,12 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        bias_in_gemm=networks.BIAS_IN_GEMM, width_align=networks.WIDTH_ALIGN,
         latency_bound=args.latency_bound, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
     )  # fmt: skip
     atomic_write_json(args.out / "bench_learner.json", result)
-    table = common.markdown_table(
+    table = writing.markdown_table(
         ("precision", "agents", "agent-updates/s", "TFLOP/s", "% of its matmul ceiling",
          "GFLOP/update (analytic)", "GFLOP/update (XLA)"),
         [(r["precision"], r["agents"], r["agent_updates_per_s"], r["tflops"], r["pct_ceiling"],
@@ -310,14 +247,7 @@ def main() -> None:
         "",
         f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
-        "updates per jitted call (replay sampling + critic step + delayed actor step)"
-        + (
-            "; hidden layers with the bias in the matmul (networks.BIAS_IN_GEMM)."
-            if networks.BIAS_IN_GEMM
-            else f"; hidden widths padded to multiples of {networks.WIDTH_ALIGN} (WIDTH_ALIGN)."
-            if networks.WIDTH_ALIGN > 1
-            else "."
-        ),
+        "updates per jitted call (replay sampling + critic step + delayed actor step).",
         "",
         f"Device: {device}, {result['date']}. Ceilings measured in the same process: "
         + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
@@ -335,12 +265,9 @@ def main() -> None:
         }
         lines += [
             "",
-            f"Against `{args.reference}` (run in the same command, same options"
-            + (", without --bias-in-gemm" if args.bias_in_gemm else "")
-            + (", without --width-align" if args.width_align > 1 else "")
-            + "):",
+            f"Against `{args.reference}` (run in the same command, same options):",
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("precision", "agents", "reference agent-updates/s", "this tree", "speed-up"),
                 [
                     (
@@ -363,11 +290,13 @@ def main() -> None:
             f"Pieces of an update at {args.breakdown} agents (µs per agent and call; the "
             f"whole update takes {per_update:.0f} µs at {rows[-1]['agents']} agents):",
             "",
-            *common.markdown_table(("piece", "µs"), ((k, 1e6 * v) for k, v in pieces), ("", ".1f")),
+            *writing.markdown_table(
+                ("piece", "µs"), ((k, 1e6 * v) for k, v in pieces), ("", ".1f")
+            ),
         ]
-    command = common.command_line("experiments/bench_learner.py", sys.argv[1:])
+    command = writing.command_line("experiments/bench_learner.py", sys.argv[1:])
     lines += ["", f"Command: `{command}`", ""]
-    common.write_markdown(args.out / "bench_learner.md", lines)
+    writing.write_markdown(args.out / "bench_learner.md", lines)
     print(np.round([r["agent_updates_per_s"] for r in rows]))
 
 

@@ -16,7 +16,7 @@ Measures, per call, after a warm-up (time.perf_counter_ns around each call):
   ``compute_ms`` it logs per cycle (sources → watchdog, observation, MLP, drive → motor).
 
 The policy is a freshly initialised paper-size actor exported with ``advisor_jax.deploy.export``
-in a child process (``common.load_paper_actor``: this script needs JAX, but the timed process
+in a child process (``car_subject.load_paper_actor``: this script needs JAX, but the timed process
 never imports it).
 Writes a markdown table.
 
@@ -33,11 +33,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as advisor-jax-car sets it
 import argparse  # noqa: E402
 import tempfile  # noqa: E402
 import timeit  # noqa: E402
-import types  # noqa: E402
 
-import common  # noqa: E402
 import numpy as np  # noqa: E402
 
+from advisor_jax.bench import car_subject, measure, writing  # noqa: E402
 from advisor_jax.contract.zones import reduce_to_zones  # noqa: E402
 from advisor_jax.runner.cyclelog import (  # noqa: E402
     JsonlLog,
@@ -116,9 +115,9 @@ def main() -> None:
     parser.add_argument("--out", default="results/bench_runner.md")
     args = parser.parse_args()
 
-    policy = common.load_paper_actor()
+    policy = car_subject.load_paper_actor()
     rng = np.random.default_rng(0)
-    scans = [common.synthetic_scan(rng, 0.0) for _ in range(64)]
+    scans = [car_subject.synthetic_scan(rng, 0.0) for _ in range(64)]
     cfg = ObservationConfig(range_offset=policy.range_offset, bounds=policy.bounds)
     controller = Controller(
         policy,
@@ -127,7 +126,7 @@ def main() -> None:
         LoopConfig(max_scan_age=1e9, max_pose_age=1e9),
     )
 
-    poses = common.swinging_poses(
+    poses = car_subject.swinging_poses(
         max(args.iters + args.warmup, args.sleep_iters + 20, args.loop_cycles)
     )
 
@@ -138,7 +137,6 @@ def main() -> None:
     beams = [scan_to_robot_frame(s.points) + (s.points[:, 2] > 0,) for s in scans]
     dropped = [~valid for *_, valid in beams]
     table = zone_table(cfg.mount_yaw_deg)
-    generic_np = types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if k[0] != "_"})
 
     def obs_mlp(b: ObservationBuilder):
         return lambda i: policy.act(b.build(scans[i % 64], poses[i]))
@@ -146,7 +144,7 @@ def main() -> None:
     def run(cases: dict, iters: int, warmup: int, pause: float = 0.0, before=None) -> dict:
         for b in (*builders, controller.builder):
             b.reset()
-        return common.per_call_us(cases, iters, warmup, pause, before)
+        return measure.per_call_us(cases, iters, warmup, pause, before)
 
     pieces = {
         "obs (200-point scan → 20-d)": lambda i: builders[0].build(scans[i % 64], poses[i]),
@@ -156,7 +154,7 @@ def main() -> None:
             zone_minima_mm(scans[i % 64].points, dropped[i % 64], table), 1.0, 0.22
         ),
         "zones only: generic [200, 16] path": lambda i: reduce_to_zones(
-            *beams[i % 64], range_offset=0.22, xp=generic_np
+            *beams[i % 64], range_offset=0.22
         ),
     }
     probe = np.random.default_rng(0).random(200)
@@ -202,15 +200,15 @@ def main() -> None:
     target = rows[0]
     met = target[4] <= 200.0
     threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    command = common.command_line(
-        "experiments/bench_runner.py", common.changed_options(parser, args), scheduling=True
+    command = writing.command_line(
+        "experiments/bench_runner.py", writing.changed_options(parser, args), scheduling=True
     )
-    where = common.provenance(with_jax=False)
+    where = measure.provenance(with_jax=False)
     lines = [
         "# Runner latency (numpy-only car runner)",
         "",
         f"Date: {where['date']}. Machine: {where['cpu']}, {where['cpu_count']} cores "
-        f"({common.virtualisation()}), Linux, "
+        f"({measure.virtualisation()}), Linux, "
         f"Python {where['python']}, numpy {where['numpy']} (OpenBLAS), BLAS threads "
         f"env {threads} (advisor-jax-car sets OPENBLAS_NUM_THREADS=1 the same way).",
         f"Load average (1 min) before/after: {load_before:.1f} / {load_after:.1f} on "
@@ -223,7 +221,7 @@ def main() -> None:
         "",
         f"Command: `{command}`",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("what (µs per call, wall clock)", "calls", "p50", "p90", "p99", "max", "block p99s"),
             rows,
             formats=("", "", ".1f", ".1f", ".1f", ".1f", ""),
@@ -239,8 +237,8 @@ def main() -> None:
         "the reduction alone: the car's (`zone_minima_mm` over its 1/64° zone table, then",
         "`free_distances`) against `zones.reduce_to_zones`' generic [beams, 16]",
         "membership-matrix path (the one the simulator runs under jax.numpy) on the same",
-        "scans; they give the same bits except for a reading exactly on a zone boundary,",
-        "where the car follows spec.py's rule exactly (tests/runner).",
+        "scans; they give the same bits on every reading the RPLIDAR can give",
+        "(tests/contract/test_zones.py).",
         "",
         "A virtual machine's speed can change by 2x from one minute to the next (the speed",
         "probes above; README: runs of this benchmark on one day), and the rows run one after",
@@ -259,7 +257,7 @@ def main() -> None:
         "that does nothing, with the loop's JSONL log written as on the car.",
         "",
     ]
-    common.write_markdown(args.out, lines)
+    writing.write_markdown(args.out, lines)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ cost of data collection and bookkeeping.
 
 ``--reference TREE`` also runs the benchmark of another checkout (the commit before a speed
 change) in a subprocess of the same command, with the same options, and the table gives
-both side by side (``common.run_reference``).
+both side by side (``measure.run_reference``).
 
 Writes ``results/<name>.md`` / ``.json`` (``--name``, default bench_train). With several
 ``--devices`` counts each population is timed on each, sharded as ``advisor-jax train
@@ -30,15 +30,15 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import common
 import jax
 import jax.numpy as jnp
 
 from advisor_jax.agent.config import preset
+from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import pad, place, shard
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 PROGRAMS = {"auto": None, "general": False, "steady": True}
 """``--program``: ``population_functions``'s ``steady`` argument."""
@@ -68,8 +68,8 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
             chunk()
         return state
 
-    _, warmup = common.run_timed(warm_up)
-    best = common.best_of(chunk, args.repeats)
+    _, warmup = measure.run_timed(warm_up)
+    best = measure.best_of(chunk, args.repeats)
     sps = n * args.chunk * cfg.envs_per_agent / best
     stats = jax.devices()[0].memory_stats() or {}  # None on CPUs
     return dict(
@@ -94,7 +94,7 @@ def reference_lines(rows: list[dict], reference: dict | None, tree: Path | None)
         "",
         f"Against `{tree}` (run in the same command, same options):",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             (
                 "precision",
                 "agents",
@@ -147,7 +147,7 @@ def main() -> None:
         default="auto",
         choices=sorted(PROGRAMS),
         help="the chunk's program: auto (as training picks it: the latency-bound program "
-        "for populations of at most host_loop.LATENCY_BOUND_AGENTS per GPU), general (a "
+        "for populations of at most program.LATENCY_BOUND_AGENTS per GPU), general (a "
         "lax.cond per step for warm-up and the TD3 delay, XLA's scheduling) or steady (the "
         "latency-bound program: no conditional in the loop, overlapping kernels)",
     )
@@ -170,11 +170,11 @@ def main() -> None:
         if args.motion != "kinematic":  # older trees have no --motion (and are kinematic)
             argv += ["--motion", args.motion]
         print(f"reference: {args.reference}")
-        reference = common.run_reference(
+        reference = measure.run_reference(
             args.reference, "bench_train.py", argv, f"{args.name}.json"
         )
 
-    where = common.provenance()
+    where = measure.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
     rows = []
@@ -212,7 +212,7 @@ def main() -> None:
         "per jitted chunk; "
         f"{device}, {result['date']}.",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("precision", "agents", "devices", "agent env-steps/s", "speed-up", "s per chunk"),
             [
                 (
@@ -232,9 +232,9 @@ def main() -> None:
         "Speed-up: over the first device count, same population and precision.",
         *reference_lines(rows, reference, args.reference),
         "",
-        f"Command: `{common.command_line('experiments/bench_train.py', sys.argv[1:])}`",
+        f"Command: `{writing.command_line('experiments/bench_train.py', sys.argv[1:])}`",
     ]
-    common.write_markdown(args.out / f"{args.name}.md", lines)
+    writing.write_markdown(args.out / f"{args.name}.md", lines)
 
 
 if __name__ == "__main__":

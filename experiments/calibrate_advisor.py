@@ -25,13 +25,13 @@ import json
 import pathlib
 import sys
 
-import common
 import jax
 import numpy as np
 import tyro
 
 import envs
 from advisor_jax.agent.advisor import advisor_action, arena_advisor
+from advisor_jax.bench import measure, writing
 from advisor_jax.evaluation.evaluate import make_evaluate, summary
 from advisor_jax.fileio import atomic_write_json
 
@@ -70,7 +70,7 @@ def run(
     rows = []
     for seed in seeds:
         key = jax.random.PRNGKey(seed)
-        rates, seconds = common.run_timed(
+        rates, seconds = measure.run_timed(
             lambda key=key: summary(evaluate_fn(arena_advisor(env), key))
         )
         row = {
@@ -88,11 +88,11 @@ def run(
 
 def main(args: Args) -> dict:
     config = envs.make_env("training", motion=args.motion).config
-    where = common.provenance()
+    where = measure.provenance()
     result = {
         **where,
         "date": args.date or where["date"],
-        "command": common.command_line("experiments/calibrate_advisor.py", sys.argv[1:]),
+        "command": writing.command_line("experiments/calibrate_advisor.py", sys.argv[1:]),
         "machine": f"{where['host']}, {where['cpu_count']} CPUs, {where['device']}",
         "motion": config.motion_setting,
         "omega_max_default": config.omega_max,
@@ -142,7 +142,7 @@ def write(result: dict, out: pathlib.Path) -> None:
         "- each episode: random collision-free start (uniform position and heading) and goal "
         "≥ 1 m away; deterministic advisor; the first episode of each parallel env counts",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("arena", "episodes", "success", "collision", "timeout", "mean collision speed",
              "paper"),
             [(r["arena"], r["episodes"], *_rates(r), _speed(r["mean_collision_speed"]),
@@ -170,7 +170,7 @@ def write(result: dict, out: pathlib.Path) -> None:
         default = [r for r in result["main"] if r["arena"] in ("training", "validation")]
         rows = result["omega"] + [dict(r, omega_max=result["omega_max_default"]) for r in default]
         rows.sort(key=lambda r: (r["arena"], r["omega_max"]))
-        lines += common.markdown_table(
+        lines += writing.markdown_table(
             ("arena", "ω_max (rad/s)", "success", "collision", "timeout"),
             [(r["arena"], r["omega_max"], *_rates(r)) for r in rows],
             formats=("", "g", ""),
@@ -178,14 +178,14 @@ def write(result: dict, out: pathlib.Path) -> None:
     if result.get("settings"):
         lines += ["", "Other motion settings (the model's parameters changed), seed as above:", ""]
         rows = sorted(result["settings"], key=lambda r: (r["arena"], r["motion"]))
-        lines += common.markdown_table(
+        lines += writing.markdown_table(
             ("arena", "motion setting", "ω_max (rad/s)", "success", "collision", "timeout",
              "mean collision speed"),
             [(r["arena"], f"`{r['motion']}`", r["omega_max"], *_rates(r),
               _speed(r["mean_collision_speed"])) for r in rows],
             formats=("", "", "g", ""),
         )  # fmt: skip
-    common.write_markdown(out.with_suffix(".md"), lines)
+    writing.write_markdown(out.with_suffix(".md"), lines)
 
 
 if __name__ == "__main__":

@@ -14,11 +14,11 @@ import argparse
 import platform
 from pathlib import Path
 
-import common
 import jax
 import numpy as np
 
 import envs
+from advisor_jax.bench import measure, writing
 from advisor_jax.evaluation.closed_loop import binomial_ci95, run_closed_loop
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.runner.policy import load_policy
@@ -33,14 +33,14 @@ def main() -> None:
     args = parser.parse_args()
     policy = load_policy(args.policy)
     key = jax.random.PRNGKey(args.seed)
-    r, seconds = common.run_timed(lambda: run_closed_loop(policy, args.episodes, key))
+    r, seconds = measure.run_timed(lambda: run_closed_loop(policy, args.episodes, key))
     names = envs.OUTCOME_NAMES
     rows = {
         "runner": {n: float(np.mean(r.runner_outcomes == i)) for i, n in enumerate(names) if i},
         "jax": {n: float(np.mean(r.jax_outcomes == i)) for i, n in enumerate(names) if i},
     }
     result = dict(
-        **common.provenance(), policy=str(args.policy),
+        **measure.provenance(), policy=str(args.policy),
         agent=policy.meta["config"].get("agent"), arena=policy.env["arena"],
         episodes=args.episodes, seed=args.seed, seconds=round(seconds, 1), stops=r.stops,
         agreement=r.agreement, rates=rows,
@@ -48,9 +48,9 @@ def main() -> None:
     atomic_write_json(args.out / "closed_loop.json", result)
     ci = binomial_ci95(r.jax_success, args.episodes)
     options = ["--episodes", args.episodes, "--seed", args.seed]
-    command = common.command_line("experiments/closed_loop.py", [args.policy, *options])
+    command = writing.command_line("experiments/closed_loop.py", [args.policy, *options])
     drivers = (("numpy runner in the loop", rows["runner"]), ("JAX evaluation", rows["jax"]))
-    table = common.markdown_table(
+    table = writing.markdown_table(
         ("driver", "success", "collision", "timeout"),
         [(label, *(f"{100 * x[n]:.1f} %" for n in ("goal", "collision", "timeout")))
          for label, x in drivers],
@@ -72,7 +72,7 @@ def main() -> None:
         "",
         f"Command: `{command}`",
     ]
-    common.write_markdown(args.out / "closed_loop.md", lines, echo=True)
+    writing.write_markdown(args.out / "closed_loop.md", lines, echo=True)
 
 
 if __name__ == "__main__":

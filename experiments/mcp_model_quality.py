@@ -37,7 +37,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import common
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -50,6 +49,7 @@ from advisor_jax.agent.dynamics_model import make_dynamics_model, normalizer_fro
 from advisor_jax.agent.mpc import make_mpc_policy, sample_candidates
 from advisor_jax.agent.noise import ou_init, ou_reset, ou_step
 from advisor_jax.agent.replay_buffer import Transition
+from advisor_jax.bench import measure, writing
 from advisor_jax.contract import spec
 from advisor_jax.evaluation.evaluate import EvalMetrics, make_evaluate, summary
 from advisor_jax.fileio import atomic_write_json
@@ -369,9 +369,9 @@ def main(argv=None) -> dict:
     m_goal = np.asarray(mpc["metrics"].outcome) == envs.GOAL
     transitions = [int(t["valid"].sum()) for t in train]
     result = {
-        **common.provenance(),
-        "command": common.command_line(
-            "experiments/mcp_model_quality.py", common.changed_options(parser, args)
+        **measure.provenance(),
+        "command": writing.command_line(
+            "experiments/mcp_model_quality.py", writing.changed_options(parser, args)
         ),
         "settings": vars(args) | {"h_max": env.max_episode_steps},
         "data": {
@@ -400,7 +400,7 @@ def main(argv=None) -> dict:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out.with_suffix(".json"), result)
-    common.write_markdown(out.with_suffix(".md"), report(result, list(held)), echo=True)
+    writing.write_markdown(out.with_suffix(".md"), report(result, list(held)), echo=True)
     return result
 
 
@@ -457,7 +457,7 @@ def report(r: dict, sources: list[str]) -> list[str]:
                         ),
                     )
                 )
-        lines += common.markdown_table(
+        lines += writing.markdown_table(
             (
                 "held-out",
                 "k",
@@ -476,7 +476,7 @@ def report(r: dict, sources: list[str]) -> list[str]:
         f"## MPC (K {s['candidates']}, H {s['horizon']}) vs the advisor, "
         f"{s['mpc_episodes']} episodes, same starts and goals",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("controller", "success", "collision", "timeout", "collision speed", "mean length"),
             [
                 (

@@ -24,7 +24,7 @@ Five probes show how, on the machine they run on:
    loop (no numpy): the spread of the chunks' medians shows how the machine's speed
    changes over fractions of a second, for both alike.
 
-The policy is the paper-size actor that ``bench_runner.py`` times (``common.load_paper_actor``
+The policy is the paper-size actor that ``bench_runner.py`` times (``car_subject.load_paper_actor``
 exports it in a child process; the timed process never imports JAX). Writes a markdown report.
 
     python experiments/probe_cpu_caches.py [--rounds 300] [--out results/probe_cpu_caches.md]
@@ -43,9 +43,9 @@ import platform  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 
-import common  # noqa: E402
 import numpy as np  # noqa: E402
 
+from advisor_jax.bench import car_subject, measure, writing  # noqa: E402
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
 
 BUSY_GAPS_MS = (0.05, 0.1, 0.3, 1.0, 2.0, 5.0, 10.0)
@@ -104,7 +104,7 @@ def after_gaps(
 def cycle_subject(policy, scans: list, cfg: ObservationConfig) -> Callable[[], object]:
     """obs+mlp on the next scan and pose of a car swinging along x (as bench_runner.py)."""
     builder = ObservationBuilder(cfg, (2.0, 1.0))
-    poses = common.swinging_poses(4096)
+    poses = car_subject.swinging_poses(4096)
     counter = itertools.count()
 
     def call():
@@ -180,7 +180,9 @@ def pinning(call: Callable[[], object], rounds: int, iters: int, warmup: int) ->
         for _ in range(rounds):
             for mode, cpus in modes.items():
                 os.sched_setaffinity(0, cpus)
-                blocks[mode].append(common.per_call_us({"c": lambda i: call()}, iters, warmup)["c"])
+                blocks[mode].append(
+                    measure.per_call_us({"c": lambda i: call()}, iters, warmup)["c"]
+                )
     finally:
         os.sched_setaffinity(0, allowed)
     rows = []
@@ -214,7 +216,7 @@ def speed_drift(cycle: Callable[[], object], chunks: int, chunk_calls: int) -> l
     for _ in range(chunks):
         for name, fn in subjects.items():
             medians[name].append(
-                np.median(common.per_call_us({"c": lambda i, fn=fn: fn()}, chunk_calls, 50)["c"])
+                np.median(measure.per_call_us({"c": lambda i, fn=fn: fn()}, chunk_calls, 50)["c"])
             )
     return [(name, *np.percentile(m, [0, 25, 50, 75, 100])) for name, m in medians.items()]
 
@@ -247,9 +249,9 @@ def main() -> None:
         if getattr(args, name) < least:
             parser.error(f"--{name.replace('_', '-')} must be at least {least}")
 
-    policy = common.load_paper_actor()
+    policy = car_subject.load_paper_actor()
     rng = np.random.default_rng(0)
-    scans = [common.synthetic_scan(rng, 0.0) for _ in range(64)]
+    scans = [car_subject.synthetic_scan(rng, 0.0) for _ in range(64)]
     cfg = ObservationConfig(range_offset=policy.range_offset, bounds=policy.bounds)
     cycle = cycle_subject(policy, scans, cfg)
     probe = rng.random(200)
@@ -309,15 +311,15 @@ def main() -> None:
         )
 
     names = list(subjects)
-    where = common.provenance(with_jax=False)
-    command = common.command_line(
-        "experiments/probe_cpu_caches.py", common.changed_options(parser, args), scheduling=True
+    where = measure.provenance(with_jax=False)
+    command = writing.command_line(
+        "experiments/probe_cpu_caches.py", writing.changed_options(parser, args), scheduling=True
     )
     lines = [
         "# How fast this CPU forgets the control cycle's code and data",
         "",
         f"Date: {where['date']}. Machine: {where['cpu']}, {where['cpu_count']} cores "
-        f"({common.virtualisation()}), Linux {platform.release()} (CONFIG_HZ {hz or 'unknown'}), "
+        f"({measure.virtualisation()}), Linux {platform.release()} (CONFIG_HZ {hz or 'unknown'}), "
         f"Python {where['python']}, numpy {where['numpy']}, "
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}.",
         "",
@@ -335,7 +337,7 @@ def main() -> None:
         "drift in speed (section 5) falls on all gaps alike. A busy-wait keeps the core in this",
         "process (a Python loop reading the clock); a sleep gives it up.",
         "",
-        *common.markdown_table(("gap", "calls", *(n + " p50 / p90" for n in names)), curve),
+        *writing.markdown_table(("gap", "calls", *(n + " p50 / p90" for n in names)), curve),
         "",
         "## 2. Code or data",
         "",
@@ -343,7 +345,7 @@ def main() -> None:
         "a 5 ms busy-wait. The gathers run the same code; they differ in the data pages and",
         "cache lines they touch.",
         "",
-        *common.markdown_table(("gather", "warm p50 / p90", "after 5 ms p50 / p90"), data_rows),
+        *writing.markdown_table(("gather", "warm p50 / p90", "after 5 ms p50 / p90"), data_rows),
         "",
     ]
     if tick_rows:
@@ -355,7 +357,7 @@ def main() -> None:
             "period into 16 phase bins: the share in the most populated bin (uniform phases:",
             "about 0.06 plus sampling noise).",
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("period", "ms", "densest 1/16, slowest 2 %", "densest 1/16, all cycles"),
                 tick_rows,
                 formats=("", ".3f", ".3f", ".3f"),
@@ -368,7 +370,7 @@ def main() -> None:
         f"Blocks of 4000 back-to-back cycles (after 500 warm-up calls), {args.pin_rounds} per",
         "mode, the modes alternating block by block.",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("CPUs", "calls", "p50", "p99", "block p99s"), pin_rows, ("", "", ".1f", ".1f", "")
         ),
         "",
@@ -378,12 +380,12 @@ def main() -> None:
         "calls each), the subjects alternating chunk by chunk: the spread of the chunk",
         "medians (µs).",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("subject", "min", "q1", "median", "q3", "max"), drift_rows, ("", ".1f")
         ),
         "",
     ]
-    common.write_markdown(args.out, lines)
+    writing.write_markdown(args.out, lines)
 
 
 if __name__ == "__main__":

@@ -33,100 +33,23 @@ import tempfile
 import time
 from pathlib import Path
 
-import common
 import jax
-from bench_learner import SMALL, fill_replay, make_update_loop
 
 from advisor_jax.agent.config import parse_agent
+from advisor_jax.bench import measure, writing
+from advisor_jax.bench.learner_loop import SMALL, fill_replay, make_update_loop
+from advisor_jax.bench.trace import (
+    busy_us,
+    device_events,
+    hlo_instructions,
+    instruction_of,
+    kind_of,
+    read_trace,
+)
 from advisor_jax.fileio import atomic_write_json
 
+
 # Kernel kinds, tried in order on the lower-cased kernel name.
-KINDS = (
-    ("gemm", re.compile(r"gemm|xmma|cutlass|wgmma|cublas|sm90_|sm80_|matmul|dot|triton_gemm")),
-    ("copy/transpose", re.compile(r"transpose|copy|memcpy|memset|concatenate|slice|pad")),
-    ("reduction", re.compile(r"reduce|reduction|row_reduction|column_reduction|scatter|sort")),
-    ("elementwise fusion", re.compile(r"fusion|loop_|input_|broadcast|select|add|multiply")),
-)
-
-
-def kind_of(name: str) -> str:
-    low = name.lower()
-    for kind, pattern in KINDS:
-        if pattern.search(low):
-            return kind
-    return "other"
-
-
-def device_events(trace: dict) -> tuple[list[dict], str]:
-    """Kernel events of the trace and where they came from.
-
-    On a GPU, JAX's trace has a process per device with a thread per CUDA stream (one event
-    per kernel) beside "XLA Ops" and "XLA Modules" threads that repeat the same time at op
-    and module level: only the stream threads are kept. Elsewhere (a CPU) all events are.
-    """
-    events = [e for e in trace.get("traceEvents", []) if e.get("ph") == "X" and "dur" in e]
-    meta = [e for e in trace.get("traceEvents", []) if e.get("ph") == "M"]
-    process = {e["pid"]: e.get("args", {}).get("name", "") for e in meta
-               if e.get("name") == "process_name"}  # fmt: skip
-    thread = {(e["pid"], e["tid"]): e.get("args", {}).get("name", "") for e in meta
-              if e.get("name") == "thread_name"}  # fmt: skip
-    devices = {pid for pid, name in process.items() if re.search(r"/device:gpu", name, re.I)}
-    for pattern in (r"^stream", r"xla ops"):
-        chosen = [
-            e
-            for e in events
-            if e["pid"] in devices
-            and re.search(pattern, thread.get((e["pid"], e["tid"]), ""), re.I)
-        ]
-        if chosen:
-            return chosen, f"device threads matching {pattern!r}"
-    return events, "all events (no GPU process in the trace)"
-
-
-def busy_us(events: list[dict]) -> float:
-    """Union of the events' intervals (µs): time the device had at least one kernel running."""
-    spans = sorted((e["ts"], e["ts"] + e["dur"]) for e in events)
-    total, end = 0.0, -float("inf")
-    for start, stop in spans:
-        if stop <= end:
-            continue
-        total += stop - max(start, end)
-        end = stop
-    return total
-
-
-HLO_LINE = re.compile(r"\s*(?:ROOT )?%([\w.\-]+) = (\(.*?\)|\S+) ([\w-]+)\(")
-JAX_PREFIX = re.compile(r"^jit\([^)]*\)/(vmap\(\)/)?(while/body/)?(eval_jaxpr/)?")
-
-
-def hlo_instructions(hlo: str) -> dict[str, tuple[str, str]]:
-    """HLO instruction name → (output shape, JAX op name of its metadata)."""
-    out = {}
-    for line in hlo.splitlines():
-        m = HLO_LINE.match(line)
-        if m:
-            op_name = re.search(r'op_name="([^"]*)"', line)
-            out[m.group(1)] = (m.group(2), JAX_PREFIX.sub("", op_name.group(1) if op_name else ""))
-    return out
-
-
-def instruction_of(kernel: str, instructions: dict[str, tuple[str, str]]) -> tuple[str, str] | None:
-    """(output shape, JAX op name) of the HLO instruction that launched ``kernel`` (XLA names
-    the kernel of ``fusion.3`` ``fusion_3``); None for kernels without one (library calls)."""
-    dotted = re.sub(r"_(\d+)$", r".\1", kernel)
-    return instructions.get(dotted, instructions.get(kernel))
-
-
-def read_trace(trace_dir: Path) -> tuple[list[dict], str, Path]:
-    """``device_events`` of the Perfetto trace ``jax.profiler.trace`` wrote under
-    ``trace_dir``, and the trace file."""
-    files = sorted(trace_dir.rglob("perfetto_trace.json.gz"))
-    if not files:
-        raise RuntimeError(f"jax.profiler wrote no perfetto_trace.json.gz under {trace_dir}")
-    events, source = device_events(json.loads(gzip.decompress(files[-1].read_bytes())))
-    return events, source, files[-1]
-
-
 def role_of(shape: str, op_name: str) -> str:
     """What a memory-bound kernel does, from its output and JAX op name."""
     parts = re.findall(r"f32\[[^\]]*\]", shape)
@@ -180,7 +103,7 @@ def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> 
         "",
         "## By role",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("role", "ms per update", "%"),
             [(k, v, 100 * v / total) for k, v in sorted(roles.items(), key=lambda kv: -kv[1])],
             formats=("", ".3f", ".1f"),
@@ -188,7 +111,7 @@ def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> 
         "",
         "## Kernels (top 40)",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("kernel", "calls/update", "ms/update", "output shape", "role", "JAX op"),
             [
                 (
@@ -207,7 +130,7 @@ def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> 
         f"Command: `{command}`",
         "",
     ]
-    common.write_markdown(out / "profile_learner_ops.md", lines)
+    writing.write_markdown(out / "profile_learner_ops.md", lines)
 
 
 def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
@@ -281,7 +204,7 @@ def main() -> None:
                         help="also write the first size's trace and HLO (gzipped)")  # fmt: skip
     args = parser.parse_args()
     cfg = parse_agent(args.agent, precision=args.precision, **(SMALL if args.small else {}))
-    command = common.command_line("experiments/profile_learner.py", sys.argv[1:])
+    command = writing.command_line("experiments/profile_learner.py", sys.argv[1:])
     if args.attribute:
         trace_file, hlo_file = args.attribute
         events, _ = device_events(json.loads(gzip.decompress(trace_file.read_bytes())))
@@ -293,8 +216,8 @@ def main() -> None:
         args.out.mkdir(parents=True, exist_ok=True)
         write_attribution(args.out, attribute(events, hlo, args.updates), title, command)
         return
-    where = common.provenance()
-    ceiling = common.matmul_ceiling(2048 if args.small else 8192) / 1e12
+    where = measure.provenance()
+    ceiling = measure.matmul_ceiling(2048 if args.small else 8192) / 1e12
     print(f"device: {where['device']} ({where['backend']}); fp32 matmul {ceiling:.1f} TFLOP/s")
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -343,13 +266,13 @@ def main() -> None:
             f"({100 * row['device_busy_us'] / (1e6 * row['wall_s']):.0f} %), kernel time summed "
             f"{total / 1e3:.1f} ms over {row['events']} kernels.",
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("kind", "ms", "% of kernel time"),
                 [(k, v / 1e3, 100 * v / total) for k, v in row["by_kind_us"].items()],
                 formats=("", ".2f", ".1f"),
             ),
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("kernel", "kind", "calls", "ms", "%"),
                 [
                     (
@@ -365,7 +288,7 @@ def main() -> None:
             ),  # fmt: skip
         ]
     lines += ["", f"Command: `{command}`", ""]
-    common.write_markdown(args.out / "profile_learner.md", lines)
+    writing.write_markdown(args.out / "profile_learner.md", lines)
 
 
 if __name__ == "__main__":

@@ -31,16 +31,16 @@ import tempfile
 import time
 from pathlib import Path
 
-import common
 import jax
 import jax.numpy as jnp
-from profile_learner import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 
 from advisor_jax.agent.config import preset
+from advisor_jax.bench import measure, writing
+from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import place
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 # Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
 PARTS = (
@@ -92,10 +92,10 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
 
     while step * cfg.envs_per_agent < cfg.agent.warmup + cfg.chunk_steps:
         jax.block_until_ready(chunk())
-    _, untraced = common.run_timed(chunk)
+    _, untraced = measure.run_timed(chunk)
     hlo = compiled.as_text()
     with jax.profiler.trace(str(trace_dir), create_perfetto_trace=True):
-        _, wall = common.run_timed(chunk)
+        _, wall = measure.run_timed(chunk)
     events, source, _ = read_trace(trace_dir)
     instructions = hlo_instructions(hlo)
     steps = cfg.chunk_steps
@@ -154,7 +154,7 @@ def report(rows: list[dict], title: str, command: str) -> list[str]:
             f"{r['busy_us_per_step']:.0f} µs ({100 * r['busy_us_per_step'] / r['wall_us_per_step']:.0f} %),"  # noqa: E501
             f" idle {idle:.0f} µs; {r['kernels_per_step']:.1f} kernels per step.",
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("part of the step", "kernel µs per step", "%"),
                 [
                     (k, v, 100 * v / sum(r["part_us_per_step"].values()))
@@ -163,7 +163,7 @@ def report(rows: list[dict], title: str, command: str) -> list[str]:
                 formats=("", ".1f", ".1f"),
             ),  # fmt: skip
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("kind", "kernel µs per step"),
                 list(r["kind_us_per_step"].items()),
                 formats=("", ".1f"),
@@ -171,13 +171,13 @@ def report(rows: list[dict], title: str, command: str) -> list[str]:
             "",
             "Idle gaps between consecutive kernels, per step:",
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("gap", "count", "µs"),
                 [(k, v["count"], v["us"]) for k, v in r["gaps_per_step"].items()],
                 formats=("", ".1f", ".1f"),
             ),
             "",
-            *common.markdown_table(
+            *writing.markdown_table(
                 ("kernel", "calls per step", "µs per step", "part", "output shape", "JAX op"),
                 [
                     (
@@ -214,7 +214,7 @@ def main() -> None:
         parser.error(f"--agents and --chunk must be ≥ 1, got {args.agents} and {args.chunk}")
     cfg, hp = preset(args.preset, args.agent, precision=args.precision)
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
-    where = common.provenance()
+    where = measure.provenance()
     rows = []
     for n in args.agents:
         t0 = time.perf_counter()
@@ -238,8 +238,8 @@ def main() -> None:
              f"chunk of {args.chunk} env steps after a warm-up past the learning start; "
              f"{where['device']} ({where['backend']}), jax {where['jax']}, "
              f"{where['date']}.")  # fmt: skip
-    command = common.command_line("experiments/profile_train.py", sys.argv[1:])
-    common.write_markdown(args.out / "profile_train.md", report(rows, title, command))
+    command = writing.command_line("experiments/profile_train.py", sys.argv[1:])
+    writing.write_markdown(args.out / "profile_train.md", report(rows, title, command))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 On GPUs the training chunk runs its *steady* program once past warm-up: the same steps with
 no ``lax.cond`` inside, compiled with overlapping kernels and whole-loop CUDA graphs
-(``training.train``, ``agent.compiler_options``). The two programs fuse and order their
+(``training.train``, ``training.program``). The two programs fuse and order their
 float reductions differently, so they cannot agree bit for bit, and Adam turns tiny
 gradient differences into step-size ones. So each chunk after warm-up is run from one state
 S three ways: the general program, the steady program, and the general program on S with
@@ -22,15 +22,15 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import common
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax.agent.config import preset
+from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.host_loop import population_functions
 from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
 
 
 def relative_difference(a, b) -> float:
@@ -113,20 +113,20 @@ def main() -> int:
     rows, built = compare(args)
     if not built:
         sys.exit(f"no steady program for this config (--chunk {args.chunk}: a multiple of d?)")
-    where = common.provenance()
+    where = measure.provenance()
     result = dict(**where, **{k: v for k, v in vars(args).items() if k != "out"}, rows=rows)
     atomic_write_json(args.out / f"{args.name}.json", result)
 
     header = ["first step", "against", "counters equal", *PARTS, *METRICS]
-    table = common.markdown_table(
+    table = writing.markdown_table(
         header,
         [[r["first_step"], name, str(r[f"{name}/counters_equal"]),
           *[r[f"{name}/{k}"] for k in (*PARTS, *METRICS)]]
          for r in rows for name in ("steady", "one ulp")],
         formats=("", "", "", ".1e"),
     )  # fmt: skip
-    command = common.command_line(
-        "experiments/steady_parity.py", common.changed_options(parser, args)
+    command = writing.command_line(
+        "experiments/steady_parity.py", writing.changed_options(parser, args)
     )
     lines = [
         "# Steady against general training program (issue 17)",
@@ -146,7 +146,7 @@ def main() -> int:
         "",
         f"Command: `{command}`",
     ]
-    common.write_markdown(args.out / f"{args.name}.md", lines, echo=True)
+    writing.write_markdown(args.out / f"{args.name}.md", lines, echo=True)
     return 0
 
 

@@ -23,7 +23,6 @@ import dataclasses
 import pathlib
 import sys
 
-import common
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -31,6 +30,7 @@ import numpy as np
 import tyro
 
 import envs
+from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
 from envs.mjcf import mjx
 
@@ -103,7 +103,7 @@ def wheeled_run(h: float, drive: envs.DriveParams, n: int, repeats: int) -> dict
     z, speed = (np.asarray(x) for x in run(data))
     batch = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (n, *x.shape)), data)
     one_period = jax.jit(jax.vmap(lambda d: period(d, None)[0]))
-    _, best = common.first_and_best(lambda: one_period(batch), repeats)
+    _, best = measure.first_and_best(lambda: one_period(batch), repeats)
     finite = bool(np.all(np.isfinite(z)) and np.all(np.isfinite(speed)))
     drift = float(np.nanmax(np.abs(z - z0))) if finite else float("nan")
     return {
@@ -130,7 +130,7 @@ def planar_run(n: int, repeats: int) -> dict:
     speed = np.asarray(jax.jit(lambda c: jax.lax.scan(period, c, None, length=40)[1])((pose, qvel)))
     move = jax.jit(jax.vmap(lambda p, q: drive.move(p, q, jnp.float32(1.0), jnp.float32(0.0))))
     poses, qvels = jnp.zeros((n, 3)), jnp.zeros((n, 3))
-    _, best = common.first_and_best(lambda: move(poses, qvels), repeats)
+    _, best = measure.first_and_best(lambda: move(poses, qvels), repeats)
     return {
         "model": "planar body (envs, motion=mjx)",
         "h": DT / drive.params.substeps,
@@ -143,7 +143,7 @@ def planar_run(n: int, repeats: int) -> dict:
 
 
 def main(args: Args) -> dict:
-    where = common.provenance()
+    where = measure.provenance()
     drive = envs.DriveParams()
     rows = [planar_run(args.envs, args.repeats)]
     for h in args.steps:
@@ -152,7 +152,7 @@ def main(args: Args) -> dict:
     result = {
         **where,
         "date": args.date or where["date"],
-        "command": common.command_line("experiments/wheel_contacts.py", sys.argv[1:]),
+        "command": writing.command_line("experiments/wheel_contacts.py", sys.argv[1:]),
         "envs": args.envs,
         "rows": rows,
     }
@@ -168,7 +168,7 @@ def main(args: Args) -> dict:
         f"- test: full throttle (1 m/s target) from rest for {SECONDS:g} s in control periods "
         f"of {DT} s; {args.envs} robots vmapped for the timing; the P3DX of `DriveParams()`",
         "",
-        *common.markdown_table(
+        *writing.markdown_table(
             ("model", "physics step h (s)", "mjx.step per period", "stays on the floor",
              "max z drift (m)", "speed after 2 s (m/s)", "ms per period", "× planar"),
             [(r["model"], r["h"], r["substeps"], "yes" if r["physical"] else "no",
@@ -177,7 +177,7 @@ def main(args: Args) -> dict:
             formats=("", "g", "", "", ".2g", ".3f", ".2f", ".1f"),
         ),
     ]  # fmt: skip
-    common.write_markdown(out.with_suffix(".md"), lines)
+    writing.write_markdown(out.with_suffix(".md"), lines)
     return result
 
 

@@ -4,18 +4,16 @@
 A baseline agent is the ``DDPG`` row (or ``TD3``, ``--baseline learner=td3``) preceded by
 prior-knowledge phases that count against the same N_total episodes. This module holds what
 is *static* about them (loop lengths and batch shapes: ``BaselineConfig``), parses
-``--baseline KEY=VALUE`` and checks the *vmappable* settings (``HParams.demo_episodes``,
-``random_episodes``, ``mpc_episodes``, ``dagger_episodes``, ``bc_lr``, ``model_lr``,
-``model_noise``) against the run's budget. The phases themselves live in
-``training/phases.py`` (the hook), ``training/lfd.py`` and ``training/mcp.py``.
+``--baseline KEY=VALUE`` and checks their *vmappable* settings (``hparams.LfdHParams``,
+``hparams.McpHParams``) against the run's budget. The phases themselves live in
+``training/prior/``.
 
 Defaults (docs/baselines.md, "LfD", "MCP + model-free", "Rules shared by both baselines"):
 imitation by ``bc_steps`` = 5,000 Adam steps of batch ``bc_batch`` = 512, then
 ``critic_warmup`` = 1,000 critic-only updates before the first actor update; MCP+MF's model
 (500, 500) fitted ``model_steps`` = 3,000 steps of batch 512 per fit, random shooting with
 K = 1,000 candidates over H = 20 steps, 4 MPC rounds and 4 DAgger rounds. The ``quick``
-preset shrinks them. Only ``dataclasses`` and the standard library here: ``config`` imports
-this module.
+preset shrinks them. ``config`` imports this module.
 """
 
 from __future__ import annotations
@@ -26,6 +24,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from advisor_jax.agent.hparams import PRIOR_HPARAMS
+from advisor_jax.agent.settings import flat_fields, flat_items, setting, spec_of
+
 # Agent name (as ``parse_agent`` accepts it, any case) -> BaselineConfig.kind.
 BASELINE_AGENTS: dict[str, str] = {"lfd": "lfd", "mcp+mf": "mcp"}
 # kind -> the agent's display name (``AgentConfig.name``).
@@ -33,22 +34,11 @@ BASELINE_NAMES: dict[str, str] = {"lfd": "LfD", "mcp": "MCP+MF"}
 # Learners a baseline's RL phase may use (``AgentConfig.algo``): the shared rules' DDPG,
 # or TD3 with Table A4's σ̄, c, d.
 BASELINE_LEARNERS: tuple[str, ...] = ("ddpg", "td3")
-# HParams fields that only a baseline reads (``--hp`` / ``--grid`` refuse them otherwise).
+# The hyperparameters only a baseline reads (``--hp`` / ``--grid`` refuse them otherwise).
 BASELINE_HPARAMS: dict[str, tuple[str, ...]] = {
-    "lfd": ("demo_episodes", "bc_lr"),
-    "mcp": ("random_episodes", "mpc_episodes", "dagger_episodes", "bc_lr", "model_lr",
-            "model_noise"),
-}  # fmt: skip
-# Per-preset overrides of BaselineConfig (docs/baselines.md, "Fitting the code base"); a
-# kind takes the keys it knows (BASELINE_KEYS).
-BASELINE_PRESETS: dict[str, dict] = {
-    "paper": {},
-    "stable": {},
-    "physical": {},
-    "quick": dict(bc_steps=200, bc_batch=128, critic_warmup=100, model_hidden=(64, 64),
-                  model_steps=200, model_batch=128, mpc_horizon=5, mpc_candidates=64,
-                  mpc_rounds=2, dagger_rounds=2),
-}  # fmt: skip
+    kind: tuple(flat_fields(cls())) for kind, cls in PRIOR_HPARAMS.items()
+}
+MCP = ("mcp",)
 
 
 def _is_int(value) -> bool:
@@ -62,26 +52,26 @@ class BaselineConfig:
     kind: str = "lfd"
     """Which baseline: lfd (Pfeiffer et al.: demonstrations, imitation, then RL) or mcp
     (Nagabandi et al.: random data, model, MPC rounds, imitation of the MPC, DAgger, RL)."""
-    bc_steps: int = 5000
+    bc_steps: int = setting(5000, presets={"quick": 200})
     """Imitation: Adam steps of the actor on the demonstrations (one per scan step)."""
-    bc_batch: int = 512
+    bc_batch: int = setting(512, presets={"quick": 128})
     """Imitation minibatch (``mbmf.py``'s 512)."""
-    critic_warmup: int = 1000
+    critic_warmup: int = setting(1000, presets={"quick": 100})
     """Critic-only updates after imitation, before the first actor update (0: none, the
     sources' literal reading)."""
-    model_hidden: tuple[int, ...] = (500, 500)
+    model_hidden: tuple[int, ...] = setting((500, 500), presets={"quick": (64, 64)}, only=MCP)
     """MCP+MF: the dynamics model's hidden widths."""
-    model_steps: int = 3000
+    model_steps: int = setting(3000, presets={"quick": 200}, only=MCP)
     """MCP+MF: Adam steps of each model fit (after the random data and each MPC round)."""
-    model_batch: int = 512
+    model_batch: int = setting(512, presets={"quick": 128}, only=MCP)
     """MCP+MF: model minibatch."""
-    mpc_horizon: int = 20
+    mpc_horizon: int = setting(20, presets={"quick": 5}, only=MCP)
     """MCP+MF: H, steps of each random-shooting candidate (1.0 s)."""
-    mpc_candidates: int = 1000
+    mpc_candidates: int = setting(1000, presets={"quick": 64}, only=MCP)
     """MCP+MF: K, candidate action sequences per control step."""
-    mpc_rounds: int = 4
+    mpc_rounds: int = setting(4, presets={"quick": 2}, only=MCP)
     """MCP+MF: rounds of ``mpc_episodes`` MPC episodes, each followed by a model refit."""
-    dagger_rounds: int = 4
+    dagger_rounds: int = setting(4, presets={"quick": 2}, only=MCP)
     """MCP+MF: rounds of ``dagger_episodes`` actor episodes labelled by the MPC, each followed
     by a refit of the actor (0: imitation of the MPC rounds only)."""
 
@@ -114,13 +104,13 @@ class BaselineConfig:
         return BASELINE_NAMES[self.kind]
 
 
-# ``--baseline KEY=VALUE``: the keys each kind knows. ``learner`` sets AgentConfig.algo.
-_FIELDS = tuple(f.name for f in dataclasses.fields(BaselineConfig) if f.name != "kind")
-_LFD_FIELDS = ("bc_steps", "bc_batch", "critic_warmup")
+# ``--baseline KEY=VALUE``: the keys each kind knows (``setting``'s ``only``). ``learner``
+# sets AgentConfig.algo.
 BASELINE_KEYS: dict[str, tuple[str, ...]] = {
-    "lfd": ("learner", *_LFD_FIELDS),
-    "mcp": ("learner", *_FIELDS),
-}
+    kind: ("learner", *(f.name for f in dataclasses.fields(BaselineConfig)
+                        if spec_of(f) and (not spec_of(f).only or kind in spec_of(f).only)))
+    for kind in BASELINE_NAMES
+}  # fmt: skip
 
 
 def parse_baseline_settings(items: Sequence[str], kind: str | None, agent: str) -> dict:
@@ -181,29 +171,24 @@ def check_baseline_learner(algo: str, advisor_data: bool, advisor_policy: bool) 
 
 
 def prior_episodes(settings: BaselineConfig, hp) -> np.ndarray:
-    """Episodes the baseline's phases before RL take, per stacked agent (float64 [agents])."""
+    """Episodes the baseline's phases before RL take, per stacked agent (float64 [agents]);
+    ``hp``: the agents' ``BaselineHParams`` (or their flat values)."""
+    values = hp if isinstance(hp, Mapping) else flat_items(hp)
+    count = lambda name: np.atleast_1d(np.asarray(values[name], np.float64))  # noqa: E731
     if settings.kind == "lfd":
-        return np.atleast_1d(np.asarray(hp.demo_episodes, np.float64))
-    count = lambda name: np.atleast_1d(np.asarray(getattr(hp, name), np.float64))  # noqa: E731
+        return count("demo_episodes")
     return (count("random_episodes") + settings.mpc_rounds * count("mpc_episodes")
             + settings.dagger_rounds * count("dagger_episodes"))  # fmt: skip
 
 
-def check_baseline_hparams(
-    kind: str | BaselineConfig | None, episodes: int, hp, grid: Mapping | None = None,
-    agent: str = "",
-) -> None:  # fmt: skip
-    """The vmappable settings against the budget, per stacked agent.
-
-    ``kind``: the agent's ``BaselineConfig`` (or, for LfD, its kind), None for the paper's
-    agents. Each episode count must be a whole number >= 1 and the prior phases together
-    below N_total: the RL phase needs at least one episode. A grid over a baseline HParam is
-    refused for an agent that does not read it.
-    """
-    settings = BaselineConfig(kind=kind) if isinstance(kind, str) else kind
+def check_hparam_names(
+    settings: BaselineConfig | None, names: Sequence[str], agent: str = ""
+) -> None:
+    """Refuses a baseline's hyperparameter (``--hp`` / ``--grid``) for an agent that does not
+    read it, naming the agents that do."""
     own = () if settings is None else BASELINE_HPARAMS[settings.kind]
     foreign = {n for ns in BASELINE_HPARAMS.values() for n in ns} - set(own)
-    used = sorted(set(grid or ()) & foreign)
+    used = sorted(set(names) & foreign)
     if used:
         what = ("is not a baseline" if settings is None
                 else f"is {settings.name}, which does not read it")  # fmt: skip
@@ -212,17 +197,33 @@ def check_baseline_hparams(
             f"unknown baseline setting {', '.join(used)}: agent {agent!r} {what} (only "
             f"{', '.join(readers)} read it)"
         )
+
+
+def check_baseline_hparams(
+    settings: BaselineConfig | None, episodes: int, hp, grid: Mapping | None = None,
+    agent: str = "",
+) -> None:  # fmt: skip
+    """The vmappable settings against the budget, per stacked agent.
+
+    ``settings``: the agent's ``BaselineConfig``, None for the paper's agents; ``hp``: its
+    hyperparameters (a baseline's ``BaselineHParams``). Each episode count (declared
+    ``count``) must be a whole number >= 1 and the prior phases together below N_total: the
+    RL phase needs at least one episode. A grid over a baseline hyperparameter is refused
+    for an agent that does not read it.
+    """
+    check_hparam_names(settings, list(grid or ()), agent)
     if settings is None:
         return
-    counts = (("demo_episodes",) if settings.kind == "lfd" else
-              ("random_episodes", "mpc_episodes", "dagger_episodes"))  # fmt: skip
-    for name in counts:
-        values = np.atleast_1d(np.asarray(getattr(hp, name), np.float64))
-        for i, d in enumerate(values):
-            where = f" (agent {i})" if values.size > 1 else ""
+    fields, values = flat_fields(hp), flat_items(hp)
+    for name in BASELINE_HPARAMS[settings.kind]:
+        if not fields[name][1].count:
+            continue
+        column = np.atleast_1d(np.asarray(values[name], np.float64))
+        for i, d in enumerate(column):
+            where = f" (agent {i})" if column.size > 1 else ""
             if not (math.isfinite(d) and d == round(d) and d >= 1):
                 raise ValueError(f"{name}={d:g}{where} must be a whole number >= 1")
-    total = prior_episodes(settings, hp)
+    total = prior_episodes(settings, values)
     for i, d in enumerate(total):
         where = f" (agent {i})" if total.size > 1 else ""
         if d < episodes:
@@ -235,8 +236,8 @@ def check_baseline_hparams(
             )
         picked = {}
         for name in ("random_episodes", "mpc_episodes", "dagger_episodes"):
-            values = np.atleast_1d(np.asarray(getattr(hp, name), np.float64))
-            picked[name] = values[min(i, values.size - 1)]
+            column = np.atleast_1d(np.asarray(values[name], np.float64))
+            picked[name] = column[min(i, column.size - 1)]
         raise ValueError(
             f"random_episodes + mpc_rounds·mpc_episodes + dagger_rounds·dagger_episodes = "
             f"{picked['random_episodes']:g} + {settings.mpc_rounds}·{picked['mpc_episodes']:g} + "

@@ -1,40 +1,50 @@
-"""Configuration: static shapes and switches vs. vmappable scalar hyperparameters.
+"""Configuration: the static settings of an agent type and a run, and the presets.
 
-Two kinds of configuration (docs/architecture.md, "Configuration"):
+Two kinds of configuration (docs/architecture.md, "Configuration"; ``settings``):
 
 * ``AgentConfig`` / ``TrainConfig`` are frozen dataclasses of *static* values: anything that
   fixes a shape, a loop length or a code path (network sizes, buffer and batch sizes, the
   algorithm and advisor switches, the TD3 delay d). Changing one recompiles.
-* ``HParams`` is a ``flax.struct`` dataclass of *scalars* (γ, τ, β, learning rates, ε_st,
-  b, N_T, noise scales). Every field is a pytree leaf, so a grid of seeds × hyperparameters
-  is one ``vmap`` over a stacked ``HParams`` and one compile.
+* The hyperparameters (``hparams.HParams``, a baseline's own) are scalars, pytree leaves:
+  a grid of seeds × hyperparameters is one ``vmap`` and one compile.
 
-Defaults are the paper's simulation column (Tables A2, A4). Two readings of the paper are
-ours (docs/architecture.md, "Paper readings"): the decay b = 0.15 of Table A2 cannot be per
-episode (ε_st - bN would be negative after six episodes), so the default is 0.15 per 100
-episodes, b = 0.0015; and the Ornstein–Uhlenbeck parameters, which the paper does not
-give, default to θ = 0.15, σ = 0.1 (stationary std ≈ 0.19 in normalised action units; a
-larger σ made the noisy advisor collide more; README, "How we read the paper").
+Every setting is declared once, with its value in each preset where that differs from the
+default (``settings.setting`` / ``settings.hparam``); ``PRESETS`` names and explains the
+presets, ``preset`` builds one agent type's configuration and hyperparameters from them.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
+from collections.abc import Mapping
 from typing import Literal
-
-import numpy as np
-from flax import struct
 
 from advisor_jax.agent.baselines import (
     BASELINE_AGENTS,
     BASELINE_KEYS,
     BASELINE_NAMES,
-    BASELINE_PRESETS,
     BaselineConfig,
     check_baseline_learner,
 )
+from advisor_jax.agent.hparams import (
+    HPARAM_NAMES,
+    PRIOR_HPARAMS,
+    SWITCHES,
+    BaselineHParams,
+    HParams,
+)
+from advisor_jax.agent.settings import (
+    PRESET_NAMES,
+    flat_fields,
+    preset_values,
+    replace_flat,
+    setting,
+)
+from advisor_jax.agent.settings import freeze as freeze
+from advisor_jax.agent.settings import validate as validate_hparams
 from advisor_jax.contract import spec
+
+__all__ = ["HPARAM_NAMES", "SWITCHES", "HParams", "BaselineHParams", "freeze", "validate_hparams"]
 
 Algo = Literal["ddpg", "addpg", "td3", "atd3"]
 ALGOS: tuple[str, ...] = ("ddpg", "addpg", "td3", "atd3")
@@ -58,17 +68,17 @@ class AgentConfig:
     advisor_policy: bool = True
     """AfP: the advisor replaces Â per sample where the critic rates it higher (Alg. 2
     steps 11-13). Only for addpg / atd3."""
-    actor_hidden: tuple[int, ...] = (600, 300)
+    actor_hidden: tuple[int, ...] = setting((600, 300), presets={"quick": (64, 64)})
     """Actor hidden widths (paper: 600, 300 → 193,502 parameters)."""
-    critic_state_hidden: int = 1000
+    critic_state_hidden: int = setting(1000, presets={"quick": 128})
     """Critic width of the state-only first layer (paper: 1000)."""
-    critic_hidden: tuple[int, ...] = (500, 600)
+    critic_hidden: tuple[int, ...] = setting((500, 600), presets={"quick": (128, 128)})
     """Critic widths after the action joins (paper: 500, 600 → 823,701 parameters)."""
-    buffer_size: int = 100_000
+    buffer_size: int = setting(100_000, presets={"physical": 50_000, "quick": 20_000})
     """Replay capacity per agent (Table A2)."""
-    batch_size: int = 1000
+    batch_size: int = setting(1000, presets={"physical": 500, "quick": 128})
     """Minibatch n (Table A2)."""
-    policy_delay: int = 4
+    policy_delay: int = setting(4, presets={"physical": 3})
     """TD3/ATD3 delay d: actor and target updates every d critic updates (Table A4).
     Ignored (taken as 1) for ddpg / addpg."""
     learning_starts: int = 0
@@ -196,106 +206,21 @@ def parse_agent(name: str, **overrides) -> AgentConfig:
 PAPER_AGENTS = ("DDPG", "ADDPG", "ADDPG+AfD", "ADDPG+AfP", "ADDPG+AfDP", "ATD3+AfDP")
 
 
-@struct.dataclass
-class HParams:
-    """Scalar hyperparameters; every field can differ across the agents of one vmap."""
-
-    gamma: float = 0.9  # γ, Table A2
-    tau: float = 0.1  # τ, soft target update, Eqs. (6), (7)
-    beta: float = 0.01  # β, Eq. (2)
-    lr_actor: float = 1e-5  # α_actor
-    lr_critic: float = 1e-3  # α_critic
-    eps_start: float = 0.85  # ε_st, Eq. (1)
-    eps_decay: float = 0.0015  # b, Eq. (1): per episode (paper's 0.15 read per 100)
-    advisor_episodes: float = 250.0  # N_T, Eq. (1): advisor off once N > N_T
-    advisor_policy_episodes: float = 1e9  # N_P (ours): AfP replacement only while N <= N_P;
-    # the paper replaces for the whole run, which the default (never reached) keeps
-    ou_theta: float = 0.15  # Ornstein–Uhlenbeck mean reversion
-    ou_sigma: float = 0.1  # Ornstein–Uhlenbeck scale (normalised action units)
-    target_noise: float = 0.1  # σ̄, TD3 target smoothing (Table A4)
-    target_noise_clip: float = 0.2  # c, Table A4
-    beta_normalize: float = 0.0  # 0: Eq. (2)'s step is β∇_aQ (paper); 1: scale-free, β/rms‖∇_aQ‖
-    clip_actor_target: float = 0.0  # 0: Â as printed (paper); 1: Â clipped to the action box
-    clip_q_target: float = 0.0  # 0: Q̂ as printed (paper); 1: Q̂ clipped to the arena's return
-    # bounds (envs.reward.return_bounds), against the single critic's overestimation runaway
-    demo_episodes: float = 250.0  # D (LfD only): demonstration episodes, counted in N_total
-    bc_lr: float = 1e-3  # imitation learning rate (LfD, MCP+MF; mbmf.py's 1e-3)
-    random_episodes: float = 50.0  # R (MCP+MF only): uniform-action episodes, in N_total
-    mpc_episodes: float = 40.0  # M (MCP+MF only): MPC episodes per round, in N_total
-    dagger_episodes: float = 10.0  # MCP+MF only: actor episodes per DAgger round, in N_total
-    model_lr: float = 1e-3  # MCP+MF only: the dynamics model's Adam learning rate
-    model_noise: float = 0.01  # MCP+MF only: input noise σ of the model fit (normalised units)
-
-
-HPARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(HParams))
-
-# Allowed ranges: (low, high, low inclusive, high inclusive).
-_HPARAM_RANGES = {
-    "gamma": (0.0, 1.0, True, False),
-    "tau": (0.0, 1.0, False, True),
-    "beta": (0.0, math.inf, True, False),
-    "lr_actor": (0.0, math.inf, False, False),
-    "lr_critic": (0.0, math.inf, False, False),
-    "eps_start": (0.0, 1.0, True, True),
-    "eps_decay": (0.0, math.inf, True, False),
-    "advisor_episodes": (0.0, math.inf, True, False),
-    "advisor_policy_episodes": (0.0, math.inf, True, False),
-    "ou_theta": (0.0, math.inf, True, False),
-    "ou_sigma": (0.0, math.inf, True, False),
-    "target_noise": (0.0, math.inf, True, False),
-    "target_noise_clip": (0.0, math.inf, True, False),
-    "beta_normalize": (0.0, 1.0, True, True),
-    "clip_actor_target": (0.0, 1.0, True, True),
-    "clip_q_target": (0.0, 1.0, True, True),
-    "demo_episodes": (1.0, math.inf, True, False),
-    "bc_lr": (0.0, math.inf, False, False),
-    "random_episodes": (1.0, math.inf, True, False),
-    "mpc_episodes": (1.0, math.inf, True, False),
-    "dagger_episodes": (1.0, math.inf, True, False),
-    "model_lr": (0.0, math.inf, False, False),
-    "model_noise": (0.0, math.inf, True, False),
-}
-# Switches: traced like every hyperparameter (one sweep can hold both settings), 0 or 1 only.
-SWITCHES: tuple[str, ...] = ("beta_normalize", "clip_actor_target", "clip_q_target")
-
-
-def validate_hparams(hp: HParams) -> None:
-    """Raises ValueError naming the field, the bad value and the agent index (if stacked)."""
-    for name in HPARAM_NAMES:
-        values = np.atleast_1d(np.asarray(getattr(hp, name), dtype=np.float64))
-        low, high, low_inc, high_inc = _HPARAM_RANGES[name]
-        ok = np.isfinite(values) | (np.isinf(values) & (high == math.inf) & (values > 0))
-        ok &= (values >= low) if low_inc else (values > low)
-        ok &= (values <= high) if high_inc else (values < high)
-        if name in SWITCHES:
-            ok &= (values == 0.0) | (values == 1.0)
-        if not ok.all():
-            bad = int(np.flatnonzero(~ok)[0])
-            where = f" (agent {bad})" if values.size > 1 else ""
-            lo, hi = ("[" if low_inc else "("), ("]" if high_inc else ")")
-            allowed = (
-                "is a switch: 0 or 1"
-                if name in SWITCHES
-                else f"is outside {lo}{low:g}, {high:g}{hi}"
-            )
-            raise ValueError(f"hyperparameter {name}={values[bad]:g}{where} {allowed}")
-
-
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Static description of a training run (shared by every agent of one vmap)."""
 
     agent: AgentConfig = AgentConfig()
-    arena: str = "training"
+    arena: str = setting("training", presets={"physical": "physical"})
     """Arena to train in (see ``advisor-jax arena --help``)."""
-    episodes: int = 500
+    episodes: int = setting(500, presets={"physical": 200, "quick": 60})
     """N_total: training episodes per agent."""
     envs_per_agent: int = 1
     """Environments each agent collects from in parallel (paper: 1)."""
     updates_per_step: int = 1
     """Gradient updates per environment step of an agent (the paper trains
     asynchronously; we update synchronously)."""
-    chunk_steps: int = 1000
+    chunk_steps: int = setting(1000, presets={"quick": 500})
     """Environment steps per jitted host-loop iteration (progress, metrics, checkpoints)."""
     max_episode_steps: int = 0
     """h_max; 0 means the arena's default (300 simulation, 150 physical)."""
@@ -338,41 +263,40 @@ class TrainConfig:
 
 # Presets --------------------------------------------------------------------------------
 
-# paper, physical and quick keep the paper's literal Eqs. (2) and (4) (beta_normalize = 0,
-# clip_actor_target = 0, clip_q_target = 0). stable is paper with the readings that 16 seeds
-# per agent type support (docs/architecture.md R33-R35):
-# - Â clipped to the action box and a scale-free step of length β = 1
-#   (results/afp_collapse/afp_collapse.md): at literal β >= 3, 4 of 8 ATD3+AfDP seeds
-#   collapsed (saturated heads, steps of 5-164 action units); scale-free and clipped, none
-#   of 24 did, and the mean rose from the paper's β's ~60 % to 82 %;
-# - the TD target clipped to the arena's return bounds (results/q_target_clip.md): without
-#   it 7 of 64 ADDPG-family seeds collapsed as their one critic overestimated past any
-#   achievable return; with it none of 80 seeds of five agent types ended below 56 %.
-PRESETS: dict[str, tuple[dict, dict, dict]] = {
-    # name: (AgentConfig overrides, TrainConfig overrides, HParams overrides)
-    "paper": ({}, {}, {}),
-    "stable": (
-        {}, {}, dict(beta=1.0, beta_normalize=1.0, clip_actor_target=1.0, clip_q_target=1.0)
-    ),
-    "physical": (
-        dict(buffer_size=50_000, batch_size=500, policy_delay=3),
-        dict(arena="physical", episodes=200),
-        dict(lr_actor=1e-4, eps_start=0.9, eps_decay=0.001, advisor_episodes=100.0,
-             target_noise=0.05, target_noise_clip=0.1, demo_episodes=100.0,
-             random_episodes=20.0, mpc_episodes=16.0, dagger_episodes=4.0),
-    ),
-    # Small networks and budgets that train in minutes on a 2-core CPU.
-    "quick": (
-        dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
-             buffer_size=20_000, batch_size=128),
-        dict(episodes=60, chunk_steps=500),
-        dict(lr_actor=1e-3, advisor_episodes=30.0, eps_decay=0.01, demo_episodes=30.0,
-             random_episodes=6.0, mpc_episodes=8.0, dagger_episodes=4.0),
-    ),
-}  # fmt: skip
-# The baselines' static settings per preset (BaselineConfig overrides) are in
-# ``baselines.BASELINE_PRESETS``; their HParams (demo_episodes = N_T; MCP+MF's random, MPC
-# and DAgger episodes summing to N_T) are above.
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """A named starting point: its values are declared at each setting (``presets=``)."""
+
+    name: str
+    help: str
+
+
+PRESETS: dict[str, Preset] = {
+    p.name: p
+    for p in (
+        Preset("quick", "small networks and budgets that train in minutes on a 2-core CPU"),
+        Preset("paper", "Tables A2/A4, simulation column"),
+        Preset(
+            "stable",
+            "paper with Eq. 2's Â clipped to the action box, a scale-free step β = 1 and the "
+            "TD target clipped to the arena's return bounds: no seed of any Table 1 type below "
+            "the advisor in 16 (docs/architecture.md R33-R35)",
+        ),
+        Preset("physical", "Tables A2/A4, physical column, physical arena"),
+    )
+}
+assert tuple(sorted(PRESETS)) == tuple(sorted(PRESET_NAMES))
+
+
+def default_hparams(agent: AgentConfig, preset_name: str = "paper") -> HParams | BaselineHParams:
+    """The hyperparameters of ``agent``'s type in a preset: an ``HParams``, or for a baseline
+    a ``BaselineHParams`` holding its prior phases' own too."""
+    rl = HParams(**preset_values(HParams, preset_name))
+    if agent.baseline is None:
+        return rl
+    prior = PRIOR_HPARAMS[agent.baseline.kind]
+    return BaselineHParams(rl=rl, prior=prior(**preset_values(prior, preset_name)))
 
 
 def preset(
@@ -382,15 +306,17 @@ def preset(
 
     ``agent_overrides`` replace AgentConfig fields of the preset (e.g. ``batch_size=64``);
     ``baseline`` replaces BaselineConfig fields of a baseline agent (``learner`` sets its
-    ``algo``), as parsed by ``baselines.parse_baseline_settings``.
+    ``algo``), as parsed by ``baselines.parse_baseline_settings``. The hyperparameters are
+    ``default_hparams``: an ``HParams``, or a baseline's ``BaselineHParams``.
     """
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
-    agent_kw, train_kw, hp_kw = PRESETS[name]
+    agent_kw = preset_values(AgentConfig, name, changed_only=True)
     agent_cfg = parse_agent(agent, **{**agent_kw, **agent_overrides})
     if agent_cfg.baseline is not None:
         kind = agent_cfg.baseline.kind
-        defaults = {k: v for k, v in BASELINE_PRESETS[name].items() if k in BASELINE_KEYS[kind]}
+        defaults = preset_values(BaselineConfig, name, changed_only=True)
+        defaults = {k: v for k, v in defaults.items() if k in BASELINE_KEYS[kind]}
         settings = {**defaults, **(baseline or {})}
         algo = settings.pop("learner", agent_cfg.algo)
         agent_cfg = dataclasses.replace(
@@ -401,11 +327,13 @@ def preset(
             f"unknown baseline setting {', '.join(map(repr, baseline))}: agent {agent!r} is "
             "not a baseline"
         )
-    return TrainConfig(agent=agent_cfg, **train_kw), HParams(**hp_kw)
+    train_kw = preset_values(TrainConfig, name, changed_only=True)
+    return TrainConfig(agent=agent_cfg, **train_kw), default_hparams(agent_cfg, name)
 
 
 def train_config_from_dict(d: dict) -> TrainConfig:
-    """Inverse of ``dataclasses.asdict(TrainConfig)`` (as saved in run.json)."""
+    """Inverse of ``dataclasses.asdict(TrainConfig)`` (as saved in run.json, by this version
+    or an older one: settings added since take their defaults)."""
     try:
         agent = dict(d["agent"])
         for name in ("actor_hidden", "critic_hidden"):
@@ -416,3 +344,13 @@ def train_config_from_dict(d: dict) -> TrainConfig:
         return TrainConfig(**{**d, "agent": AgentConfig(**agent)})
     except (KeyError, TypeError) as e:
         raise ValueError(f"not a training configuration: {e}") from None
+
+
+def hparams_from_row(agent: AgentConfig, row: Mapping[str, float]) -> HParams | BaselineHParams:
+    """One agent's hyperparameters from its run.json ``agents`` row (flat names), for
+    ``agent``'s type. Rows of older versions load too: a name the type does not declare is
+    ignored (they listed every baseline's hyperparameters for every agent), one they lack
+    takes the ``paper`` default (it was added since, with the default the run had)."""
+    base = default_hparams(agent)
+    names = flat_fields(base)
+    return replace_flat(base, **{n: float(row[n]) for n in names if n in row})

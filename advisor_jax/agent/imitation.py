@@ -9,9 +9,10 @@ paper's Eq. (3) (R23: batch mean of the squared distance summed over V and ω)::
     φ ← Adam(lr = bc_lr)(φ, ∇_φ L_BC)             lr 1e-3, batch 512 (``mbmf.py``)
 
 The functions are of one agent and pure (jit / vmap at the call site); the learning rate is
-traced (a vmappable ``HParams.bc_lr``), so the Adam transformation is built inside the step
-as the learner's is. The Adam state is the imitation's own: the RL phase starts from a fresh
-actor Adam state (docs/baselines.md, "RL start").
+traced (a baseline's vmappable ``bc_lr``, ``hparams.LfdHParams``), so the Adam
+transformation is built inside the step as the learner's is. The Adam state is the
+imitation's own: the RL phase starts from a fresh actor Adam state (docs/baselines.md, "RL
+start").
 """
 
 from __future__ import annotations

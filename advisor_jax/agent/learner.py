@@ -74,7 +74,6 @@ from advisor_jax.agent.networks import (
     apply_critics,
     init_actor,
     init_critics,
-    inputs_per_critic_by_default,
     make_actor,
     make_critic,
 )
@@ -117,8 +116,15 @@ class Learner(NamedTuple):
     """(state, batch, hp, episode=0) -> (state, metrics): one actor update and the soft update
     of all targets; ``episode`` (episodes completed) gates the AfP replacement by N_P."""
     update: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, update_index, episode=0, actor=None) ->
-    (state, metrics, nonfinite): one whole update (see ``make_learner``)."""
+    """(state, replay, sample_key, critic_key, hp, update_index, episode=0) -> (state,
+    metrics, nonfinite): one whole update, its delayed actor step decided from
+    ``update_index`` (see ``make_learner``)."""
+    update_with_actor: Callable[..., tuple[Any, Metrics, jax.Array]]
+    """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
+    that takes the actor step, with no conditional."""
+    update_critic_only: Callable[..., tuple[Any, Metrics, jax.Array]]
+    """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
+    that skips it, with no conditional."""
 
 
 def _adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
@@ -136,21 +142,26 @@ def _first_critic(critic_params: Any) -> Any:
 def make_learner(
     cfg: AgentConfig,
     return_bounds: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None,
+    inputs_per_critic: bool = False,
 ) -> Learner:
     """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able).
 
     ``return_bounds``: γ -> (lo, hi), the interval of every achievable discounted return
     (``functools.partial(envs.reward.return_bounds, env.config)``); the critic clips Q̂ into
     it for agents with ``clip_q_target`` = 1. None: no clipping whatever the switch says.
+    ``inputs_per_critic``: the twin critics' input layout (``networks.apply_critics``) of
+    all this learner's critics, its fp32 acting critic too; the program that runs the
+    learner chooses it (``training.program.twin_inputs_per_critic``).
+
+    Long: the factory of the learner's closures (init, selector Q, the two steps and the
+    three whole updates), which share its networks and settings; each is short.
     """
     if not isinstance(cfg, AgentConfig):
         raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")
     actor = make_actor(cfg.actor_hidden, cfg.precision)
     critic = make_critic(cfg, cfg.precision)
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
-    # One layout of the twins' shared inputs for all of this learner's critics, its fp32
-    # acting critic too (networks.inputs_per_critic_by_default: per critic on GPUs).
-    per_critic = inputs_per_critic_by_default()
+    per_critic = inputs_per_critic
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)
@@ -262,6 +273,20 @@ def make_learner(
         }
         return new_state, metrics
 
+    def sample_and_critic(state, replay, sample_key, critic_key, hp):
+        with jax.named_scope("replay_sample"):  # scopes: labels for profiles, nothing else
+            batch = replay_sample(replay, sample_key, cfg.batch_size)
+        with jax.named_scope("critic_step"):
+            state, critic_metrics = critic_step(state, batch, critic_key, hp)
+        return state, batch, critic_metrics
+
+    def skip_actor(state, batch, hp, episode):
+        return state, nan_like(jax.eval_shape(actor_step, state, batch, hp, episode)[1])
+
+    def finish(state, critic_metrics, actor_metrics, took_actor):
+        nonfinite = ~_all_finite(critic_metrics) | (took_actor & ~_all_finite(actor_metrics))
+        return state, {**critic_metrics, **actor_metrics}, nonfinite
+
     def update(
         state: LearnerState,
         replay: ReplayState,
@@ -270,48 +295,48 @@ def make_learner(
         hp: HParams,
         update_index: jax.Array | int,
         episode: jax.Array | int = 0,
-        actor: bool | None = None,
     ) -> tuple[LearnerState, Metrics, jax.Array]:
         """One update (Alg. 2 steps 6-15, Alg. A3 steps 9-22): sample, critic, delayed actor.
 
         Args:
           sample_key: draws the batch; critic_key: TD3's target smoothing noise.
-          update_index: global index of this update. Pass it *unbatched* under ``vmap``:
-            the delay test ``update_index % d == 0`` then stays a scalar and ``lax.cond``
-            really skips the actor step instead of computing and selecting it.
+          update_index: global index of this update; the actor step runs when
+            ``update_index % d == 0`` (``lax.cond``). Pass it *unbatched* under ``vmap``:
+            the test then stays a scalar and the cond really skips the actor step instead
+            of computing and selecting it.
           episode: episodes the agent has completed (the N_P gate of ``actor_step``).
-          actor: None decides the delayed actor step from ``update_index`` (``lax.cond``);
-            True / False is a caller that knows it statically (``train.make_train``'s
-            steady program): the step is then compiled in, or left out, with no
-            conditional, so that a GPU can run the loop as one graph of overlapping kernels
-            (``agent.compiler_options``).
 
         Returns:
           The new state; the critic and actor metrics (the actor's NaN on updates that
           skip it); and whether any loss computed in this update was non-finite.
         """
-        with jax.named_scope("replay_sample"):  # scopes: labels for profiles, nothing else
-            batch = replay_sample(replay, sample_key, cfg.batch_size)
-        with jax.named_scope("critic_step"):
-            state, critic_metrics = critic_step(state, batch, critic_key, hp)
-
-        def skip_actor(s):
-            return s, nan_like(jax.eval_shape(actor_step, s, batch, hp, episode)[1])
-
+        state, batch, critic_metrics = sample_and_critic(state, replay, sample_key, critic_key, hp)
         with jax.named_scope("actor_step"):
-            if actor is None:
-                update_actor = update_index % cfg.delay == 0
-                state, actor_metrics = jax.lax.cond(
-                    update_actor, lambda s: actor_step(s, batch, hp, episode), skip_actor, state
-                )
-            elif actor:
-                update_actor = jnp.ones((), bool)
-                state, actor_metrics = actor_step(state, batch, hp, episode)
-            else:
-                update_actor = jnp.zeros((), bool)
-                state, actor_metrics = skip_actor(state)
-        nonfinite = ~_all_finite(critic_metrics) | (update_actor & ~_all_finite(actor_metrics))
-        return state, {**critic_metrics, **actor_metrics}, nonfinite
+            took_actor = update_index % cfg.delay == 0
+            state, actor_metrics = jax.lax.cond(
+                took_actor,
+                lambda s: actor_step(s, batch, hp, episode),
+                lambda s: skip_actor(s, batch, hp, episode),
+                state,
+            )
+        return finish(state, critic_metrics, actor_metrics, took_actor)
+
+    def update_with_actor(state, replay, sample_key, critic_key, hp, episode=0):
+        """``update`` at an index where the delay takes the actor step, compiled with no
+        conditional (a caller that knows the schedule statically: the steady program of
+        ``training.train``, which a GPU runs as one graph of overlapping kernels)."""
+        state, batch, critic_metrics = sample_and_critic(state, replay, sample_key, critic_key, hp)
+        with jax.named_scope("actor_step"):
+            state, actor_metrics = actor_step(state, batch, hp, episode)
+        return finish(state, critic_metrics, actor_metrics, jnp.ones((), bool))
+
+    def update_critic_only(state, replay, sample_key, critic_key, hp, episode=0):
+        """``update`` at an index where the delay skips the actor step, with no conditional
+        (as ``update_with_actor``); the actor metrics are NaN."""
+        state, batch, critic_metrics = sample_and_critic(state, replay, sample_key, critic_key, hp)
+        with jax.named_scope("actor_step"):
+            state, actor_metrics = skip_actor(state, batch, hp, episode)
+        return finish(state, critic_metrics, actor_metrics, jnp.zeros((), bool))
 
     return Learner(
         init=init,
@@ -319,6 +344,8 @@ def make_learner(
         critic_step=critic_step,
         actor_step=actor_step,
         update=update,
+        update_with_actor=update_with_actor,
+        update_critic_only=update_critic_only,
     )
 
 

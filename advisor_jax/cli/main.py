@@ -6,6 +6,8 @@
     advisor-jax train [--preset quick|paper|physical] [--agent ATD3+AfDP] [--seeds N] [--grid ...]
     advisor-jax evaluate --policy runs/NAME:0 --arena validation   # agent 0 of a run
     advisor-jax export runs/NAME --agent 0 --out policy/ [--onnx]
+    advisor-jax sweep experiments/studies/quick.toml --out runs/quick [--dry-run]
+    advisor-jax report runs/quick --out reports/quick
 
 To add a subcommand, write a function with type-hinted keyword arguments and a docstring
 (tyro turns them into flags and ``--help``) and add it to ``SUBCOMMANDS``. ``main`` turns
@@ -31,6 +33,8 @@ from rich.table import Table
 from rich.text import Text
 
 from advisor_jax.cli.export import ExportArgs, export_command
+from advisor_jax.cli.report import ReportArgs, report_command
+from advisor_jax.cli.sweep import SweepArgs, sweep_command
 from advisor_jax.cli.train import TrainArgs, train_command
 from advisor_jax.fileio import atomic_write_text
 from advisor_jax.runner.errors import RunnerError
@@ -161,8 +165,28 @@ def export(args: Annotated[ExportArgs, tyro.conf.arg(name="")]) -> None:
     export_command(args)
 
 
+def sweep(args: Annotated[SweepArgs, tyro.conf.arg(name="")]) -> None:
+    """Train a study file (agent types × static settings × grid × seeds) on every local GPU.
+
+    Plans the study into pieces that fit one device, runs them (resumable: a second call
+    skips finished pieces), or writes a Slurm job array (--slurm). docs/sweeps.md.
+    """
+    sweep_command(args)
+
+
+def report(args: Annotated[ReportArgs, tyro.conf.arg(name="")]) -> None:
+    """Tables 1-3, Figs 6-11 and the ε grid from finished runs, as PNG and JSON files.
+
+    Pools the runs below DIR... (one loader; they must share their evaluation episodes)
+    and writes each item they support, with the commands behind its numbers.
+    """
+    report_command(args)
+
+
 SUBCOMMANDS: dict[str, Callable[..., Any]] = {
     "train": train,
+    "sweep": sweep,
+    "report": report,
     "evaluate": evaluate,
     "export": export,
     "arena": arena,

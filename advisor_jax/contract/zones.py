@@ -1,15 +1,16 @@
-"""Lidar scan → 16 proximity zones (paper §5.2), shared verbatim by simulator and car.
+"""Lidar scan → 16 proximity zones (paper §5.2): the one rule of simulator and car.
 
 The paper's car reduces the ~200 readings of an RPLIDAR A2 turn to 16 distances by taking
 the minimum reading in each angular zone. The simulated ``physical`` arena does the same to
-its 200 MuJoCo rangefinder beams by calling this very function with ``xp=jax.numpy``; the
-car calls it with ``xp=numpy``. The zone definition is in ``spec.py``.
+its 200 MuJoCo rangefinder beams by calling ``reduce_to_zones`` with ``xp=jax.numpy``. The
+car (``runner/lidar_zones.py``) computes the same function for its control cycle's latency
+budget: a table of each 1/64° tick's zone and a scatter-minimum over raw millimetres.
+tests/contract/test_zones.py proves the two equal on every reading the RPLIDAR can give:
+every angle of its 1/64° grid, every distance of its quarter-millimetre grid. The zone
+definition is in ``spec.py``.
 
 Written against a generic array module ``xp`` (numpy or jax.numpy) with no data-dependent
-Python control flow, so it is jit- and vmap-safe. With ``xp=numpy`` (the car, where the
-control cycle has a latency budget) the minimum is a scatter-minimum (``np.minimum.at``) over
-the same zone indices and the same free distances instead of a [beams, 16] membership
-matrix: a minimum is exact, so both paths give the same bits (tests/runner checks it).
+Python control flow, so it is jit- and vmap-safe.
 """
 
 from __future__ import annotations
@@ -22,18 +23,34 @@ import numpy as np
 from advisor_jax.contract import spec
 
 assert spec.N_ZONES & (spec.N_ZONES - 1) == 0, "zone_index wraps with a bit mask"
-ZONE_WIDTH_RAD = math.radians(spec.ZONE_WIDTH_DEG)
 ZONE_START_RAD = math.radians(spec.ZONE_START_DEG)
+GRID_PER_DEGREE = 64
+"""Angles are resolved to 1/64° (the RPLIDAR's angle step, ``raw_angle / 64``): an angle
+within ``GRID_SNAP`` steps of a grid point is that grid point."""
+GRID_PER_RAD = GRID_PER_DEGREE * 180.0 / math.pi
+GRID_PER_ZONE = round(spec.ZONE_WIDTH_DEG * GRID_PER_DEGREE)
+assert GRID_PER_ZONE == spec.ZONE_WIDTH_DEG * GRID_PER_DEGREE, "zone width off the 1/64° grid"
+assert round(spec.ZONE_START_DEG * GRID_PER_DEGREE) == spec.ZONE_START_DEG * GRID_PER_DEGREE
+GRID_SNAP = 1e-6
 
 
 def zone_index(angles_rad: Any, xp: Any = np) -> Any:
     """Zone (0..15) of each robot-frame beam angle (radians, CCW positive, 0 = forward).
 
-    The mapping wraps, so +180° and -180° land in the same zone; any finite angle of
-    magnitude below ~10^8 rad (where the turn count leaves int32) is accepted.
+    Zone k holds the angles a with start - w (k + 1) < a <= start - w k (mod 360°;
+    ``spec.zone_bounds_deg``). The position is measured in 1/64° steps below zone 0's upper
+    edge and snapped to the grid (``GRID_SNAP``), so that a reading of the RPLIDAR's grid
+    that lies exactly on a boundary follows the half-open rule whatever the rounding of its
+    conversion to radians (157.5° clockwise is the top of zone 11, not zone 10). The
+    simulator's beams lie at least 0.45° from every boundary (``envs.mjcf``), where the
+    snap changes nothing. The mapping wraps, so +180° and -180° land in the same zone; any
+    finite angle of magnitude below ~10^8 rad (where the turn count leaves int32) is
+    accepted.
     """
-    # start - w (k + 1) < a <= start - w k  <=>  k <= (start - a) / w < k + 1.
-    k = xp.floor((ZONE_START_RAD - angles_rad) / ZONE_WIDTH_RAD).astype(xp.int32)
+    steps = (ZONE_START_RAD - angles_rad) * GRID_PER_RAD
+    nearest = xp.round(steps)
+    steps = xp.where(xp.abs(steps - nearest) < GRID_SNAP, nearest, steps)
+    k = xp.floor(steps / GRID_PER_ZONE).astype(xp.int32)
     return k & (spec.N_ZONES - 1)  # = k mod 16, negative k included (two's complement)
 
 
@@ -61,8 +78,6 @@ def reduce_to_zones(
     Returns:
       [16] zone distances in [0, max_range], in the sonar-ring order of ``spec``.
     """
-    if xp is np:  # the car: same result, ~3x faster (module docstring)
-        return _reduce_numpy(angles_rad, ranges_m, valid, max_range, range_offset)
     angles_rad = xp.asarray(angles_rad)
     ranges_m = xp.asarray(ranges_m)
     ok = xp.isfinite(ranges_m) & xp.isfinite(angles_rad) & (ranges_m > 0)
@@ -73,26 +88,3 @@ def reduce_to_zones(
     idx = zone_index(xp.where(xp.isfinite(angles_rad), angles_rad, 0.0), xp=xp)
     member = (idx[:, None] == xp.arange(spec.N_ZONES)[None, :]) & ok[:, None]  # [beams, 16]
     return xp.min(xp.where(member, free[:, None], max_range), axis=0)
-
-
-def _reduce_numpy(angles_rad, ranges_m, valid, max_range: float, range_offset: float):
-    """``reduce_to_zones`` for numpy as a scatter-minimum over the same zone indices.
-
-    Kept readings get exactly the generic path's free distance (``clip`` written as maximum
-    then minimum: the same values bit for bit); dropped ones never reach the minimum, so
-    their angle and range do not matter. An empty scan gives max_range everywhere.
-    """
-    angles_rad = np.asarray(angles_rad)
-    ranges_m = np.asarray(ranges_m)
-    ok = (ranges_m > 0) & (ranges_m < np.inf)  # NaN compares False: finite and positive
-    finite_angle = np.isfinite(angles_rad)
-    ok &= finite_angle
-    if valid is not None:
-        ok &= np.asarray(valid, dtype=bool)
-    # = np.clip(ranges - offset, 0, max_range), bit for bit, without np.clip's overhead
-    free = np.minimum(np.maximum(ranges_m - range_offset, 0.0), max_range)
-    if not finite_angle.all():  # keep NaN out of the integer cast; those beams are dropped
-        angles_rad = np.where(finite_angle, angles_rad, 0.0)
-    out = np.full(spec.N_ZONES, max_range, dtype=free.dtype)
-    np.minimum.at(out, zone_index(angles_rad), np.where(ok, free, max_range))
-    return out

@@ -77,6 +77,9 @@ def export_policy(
 
     Returns:
       The policy.json dict.
+
+    Long: one straight sequence (check, verify against numpy, describe, write, reload as
+    the car does), most of it the literal policy.json; its order is the point.
     """
     hidden = tuple(int(w) for w in actor_hidden)
     layers = _actor_layers(actor_params, hidden)

@@ -1,4 +1,5 @@
-"""Training: the jitted collect-and-update scan (``train``), populations of seeds ×
-hyperparameters (``population``), the host loop with checkpoints and outputs
-(``host_loop``), reporting, and reading a run directory back (``run_directory``).
+"""Training: the RL core's step and its chunk (``train``, ``state``), a baseline's phases
+around it (``prior/``), how a population's program is built and compiled (``program``),
+populations of seeds × hyperparameters (``population``), the host loop with checkpoints and
+outputs (``host_loop``), reporting, and reading a run directory back (``run_directory``).
 """

@@ -1,4 +1,4 @@
-"""Cross-device collectives of a compiled program, and where they sit (issue 18).
+"""Cross-device collectives of a compiled program, and where they sit.
 
 A population sharded along its agent axis (``devices``) should compile to a program whose
 chunk scan exchanges nothing between devices: every agent is independent. This module reads
@@ -11,7 +11,7 @@ the JAX op and source line XLA recorded for it.
 
     python experiments/hlo_collectives.py --preset quick --agents 4 --devices 2
 
-``sharded_chunk_hlo`` compiles the population's sharded chunk (``host_loop.
+``sharded_chunk_hlo`` compiles the population's sharded chunk (``program.
 population_functions``) from abstract shapes, without running it. Call it in a process
 that sees at least ``devices`` devices (on CPU: ``XLA_FLAGS=--xla_force_host_platform_
 device_count=N`` set before JAX starts).
@@ -200,14 +200,14 @@ def sharded_chunk_hlo(cfg, n_agents: int, devices: int) -> str:
     import jax
     import jax.numpy as jnp
 
-    from advisor_jax.agent.config import HParams
+    from advisor_jax.agent.config import default_hparams
     from advisor_jax.training.devices import pad, place
-    from advisor_jax.training.host_loop import population_functions
     from advisor_jax.training.population import agent_keys, build_population
+    from advisor_jax.training.program import population_functions
 
     placement = place(n_agents, devices)
     _, init_fn, chunk_fn = population_functions(cfg, placement)
-    hp, _ = build_population(HParams(), {}, seeds=list(range(n_agents)))
+    hp, _ = build_population(default_hparams(cfg.agent), {}, seeds=list(range(n_agents)))
 
     def abstract(tree):
         sharding = placement.agents()

@@ -37,6 +37,7 @@ import os
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -46,19 +47,16 @@ from rich.console import Console
 import envs
 from advisor_jax import __version__
 from advisor_jax.agent.baselines import check_baseline_hparams
-from advisor_jax.agent.compiler_options import compiler_options
 from advisor_jax.agent.config import HParams, TrainConfig
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training import (
     checkpoint,
-    phases,
     reporting,
     run_directory,
     run_outputs,
     runlock,
 )
 from advisor_jax.training.devices import (
-    AXIS,
     Placement,
     freeze_padding,
     from_writer,
@@ -75,7 +73,7 @@ from advisor_jax.training.population import (
     check_seed,
     eval_key,
 )
-from advisor_jax.training.train import make_train
+from advisor_jax.training.program import population_functions
 
 
 def run_training(
@@ -95,6 +93,7 @@ def run_training(
     program: tuple | None = None,
     devices: int | None = None,
     eval_seed: int | None = None,
+    points: Sequence[Mapping[str, float]] | None = None,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
@@ -107,6 +106,8 @@ def run_training(
     a checkpoint and re-raises KeyboardInterrupt (``runlock.Interrupted`` for SIGTERM).
     ``eval_seed`` keys the evaluation episodes (None: the first seed); runs given the same
     one are evaluated on the same episodes, so their agents can be pooled and paired.
+    ``points``: explicit grid points in place of the product of ``grid``'s values
+    (``population.build_population``); ``grid`` then names the swept hyperparameters.
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -125,7 +126,9 @@ def run_training(
                 f"unknown {what} {', '.join(map(repr, unknown))}; choose from "
                 f"{', '.join(envs.ARENAS)}"
             )
-    hp, agents = build_population(base_hp, grid, seeds)  # checks the seeds and hyperparameters
+    hp, agents = build_population(
+        base_hp, grid, seeds, points
+    )  # checks the seeds and hyperparameters
     eval_from = check_seed(seeds[0] if eval_seed is None else eval_seed, "eval_seed")
     baseline = cfg.agent.baseline
     check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)
@@ -135,19 +138,52 @@ def run_training(
     lock = runlock.exclusive(out_dir) if is_writer() else contextlib.nullcontext()
     with lock, runlock.sigterm_as_interrupt():
         return _train_locked(
-            cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-            checkpoint_every, resume, progress, console, meta, program, placement, eval_from,
+            RunPlan(
+                cfg=cfg, hp=hp, agents=agents, grid=grid, out_dir=out_dir,
+                eval_episodes=eval_episodes, eval_arenas=eval_arenas,
+                checkpoint_every=checkpoint_every, resume=resume, progress=progress,
+                console=console, meta=meta, program=program, placement=placement,
+                eval_from=eval_from,
+            )
         )  # fmt: skip
 
 
-def _train_locked(
-    cfg, hp, agents, grid, seeds, out_dir, eval_episodes, eval_arenas,
-    checkpoint_every, resume, progress, console, meta, program, placement, eval_from,
-) -> dict:  # fmt: skip
+@dataclasses.dataclass(frozen=True)
+class RunPlan:
+    """A ``run_training`` call with its options checked: what ``_train_locked`` runs."""
+
+    cfg: TrainConfig
+    hp: Any  # the real agents' stacked hyperparameters (``build_population``)
+    agents: list[dict]  # run.json's rows, one per agent
+    grid: Mapping[str, Sequence[float]]
+    out_dir: Path
+    eval_episodes: int
+    eval_arenas: Sequence[str]
+    checkpoint_every: int
+    resume: bool
+    progress: bool
+    console: Console
+    meta: Mapping | None
+    program: tuple | None  # ``population_functions(cfg, placement)``, or None: build it
+    placement: Placement
+    eval_from: int  # the evaluation episodes' seed
+
+
+def _train_locked(run: RunPlan) -> dict:
     """``run_training`` once its options are checked and ``out_dir`` is held.
 
     During training the state is padded and sharded (``devices``); everything written or
-    reported is of the real agents only (``real``), gathered to the host."""
+    reported is of the real agents only (``real``), gathered to the host.
+
+    Long: the run in the order it happens (start or resume, the chunk loop with its
+    checkpoints, an interrupt's checkpoint and partial outputs, the final outputs), so that
+    each path's effect on the run directory reads in one place."""
+    cfg, hp, agents, grid, out_dir = run.cfg, run.hp, run.agents, run.grid, run.out_dir
+    eval_episodes, eval_arenas, checkpoint_every = (
+        run.eval_episodes, run.eval_arenas, run.checkpoint_every
+    )  # fmt: skip
+    resume, progress, console, meta = run.resume, run.progress, run.console, run.meta
+    program, placement, eval_from = run.program, run.placement, run.eval_from
     run_file = out_dir / "run.json"
     if run_file.exists() and not resume:
         raise ValueError(
@@ -188,8 +224,8 @@ def _train_locked(
         "agents": agents,
         "status": "running",
     }
-    if trainer.schedule is not None:  # a baseline: its phases, RL last (docs/baselines.md)
-        summary["phases"] = phases.describe(trainer.schedule)
+    if trainer.phases is not None:  # a baseline: its phases, RL last (docs/baselines.md)
+        summary["phases"] = trainer.phases.describe
     step = 0
     log_path = out_dir / "train_log.jsonl"
     if resume:
@@ -263,7 +299,7 @@ def _train_locked(
         host = save_checkpoint(state)  # gathered by every process, as `real` requires
         summary.update(status="interrupted", env_steps_per_agent=step)
         if writer:
-            run_outputs.write_episode_metrics(out_dir, host, hp, agents, trainer.schedule)
+            run_outputs.write_episode_metrics(out_dir, host, hp, agents, trainer.phases)
             atomic_write_json(run_file, summary)
         what = "SIGTERM" if isinstance(e, runlock.Interrupted) else "interrupted"
         console.print(
@@ -278,75 +314,7 @@ def _train_locked(
         return summary
 
     return run_outputs.finish_run(
-        out_dir, state, hp, cfg, agents, grid, summary, console, trainer.schedule,
+        out_dir, state, hp, cfg, agents, grid, summary, console, trainer.phases,
         train_seconds=train_seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
         eval_key=eval_key(eval_from),
     )  # fmt: skip
-
-
-LATENCY_BOUND_AGENTS = 32
-"""Populations of at most this many agents per device run, on GPUs, the latency-bound
-program: the chunk's steady program (``train.make_train``) compiled with overlapping
-kernels and whole-loop graphs (``agent.compiler_options``). Its kernels are too small to
-fill the GPU one at a time. Measured on one H100, one process per program, 2026-11-25
-(``results/bench_train_steady/``): bf16 agent env-steps/s 1,939 → 3,536 at 1 agent, 8,013 →
-9,008 at 16, 8,867 → 9,620 at 32, with 37-60 % more peak memory (2.1 → 2.9 GiB at 32); at
-64 agents mixed (bf16 +6 %, fp32 -3 %), and 768 bf16 agents, which fit with the general
-program, ran out of memory. Larger populations keep the general program."""
-
-
-def latency_bound(placement: Placement | None, backend: str | None = None) -> bool:
-    """Whether ``placement``'s population gets the latency-bound program on ``backend``
-    (JAX's default when None); an unknown population (None) does not."""
-    backend = jax.default_backend() if backend is None else backend
-    if backend != "gpu" or placement is None:
-        return False
-    return placement.n_padded // placement.n_devices <= LATENCY_BOUND_AGENTS
-
-
-def population_functions(
-    cfg: TrainConfig, placement: Placement | None = None, steady: bool | None = None
-):
-    """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
-
-    ``steady``: whether this is the latency-bound program (see ``LATENCY_BOUND_AGENTS``);
-    None: where it pays, decided from ``placement`` (``latency_bound``).
-
-    With a multi-device ``placement`` the agent axis of keys, state, hyperparameters and
-    metrics is sharded over its mesh and the step index replicated (``devices``); inputs
-    must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
-    functions (jit compiles on their first call); callers that train several populations
-    of one config keep and reuse them."""
-    steady = latency_bound(placement) if steady is None else steady
-    trainer = make_train(cfg, steady)
-    # The agent axis carries the mesh axis's name: a collective over it inside the step
-    # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
-    # written; tests/train/test_collectives.py injects one to show that its check of the
-    # compiled chunk (no collective inside the scan) catches it.
-    init = jax.vmap(trainer.init)
-    chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
-    if trainer.schedule is not None and trainer.schedule.gated:  # LfD, MCP+MF
-        vmapped = jax.vmap(trainer.chunk, in_axes=(0, 0, None, None), axis_name=AXIS)
-        schedule = trainer.schedule
-        n_real = None if placement is None else placement.n_agents  # the rest: padding
-
-        def chunk(state, hp, first_step):  # the flags from every agent: unbatched (phases)
-            gate = phases.population_gate(
-                schedule, state, hp, cfg.episodes, cfg.chunk_steps, n_real
-            )
-            return vmapped(state, hp, first_step, gate)
-
-    # A baseline (no steady program) still overlaps its kernels when latency-bound.
-    options = compiler_options(cfg.agent.precision, overlap=steady, steady=trainer.steady)
-    if placement is None or placement.mesh is None:
-        return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0, compiler_options=options)
-    agents, replicated = placement.agents(), placement.replicated()
-    init_fn = jax.jit(init, in_shardings=agents, out_shardings=agents)
-    chunk_fn = jax.jit(
-        chunk,
-        in_shardings=(agents, agents, replicated),
-        out_shardings=agents,
-        donate_argnums=0,
-        compiler_options=options,
-    )
-    return trainer, init_fn, chunk_fn

@@ -1,7 +1,8 @@
 """Populations: a grid of hyperparameters × seeds as one stacked ``HParams``.
 
 Every agent of a population shares the static ``TrainConfig`` and differs only in scalar
-hyperparameters and its seed, so the whole population is one ``vmap`` and one compile:
+hyperparameters (an ``HParams``, or a baseline's ``BaselineHParams``, named flat) and its
+seed, so the whole population is one ``vmap`` and one compile:
 
     hp, agents = build_population(HParams(), {"advisor_episodes": [100, 250]}, seeds=[0, 1, 2])
     # 6 agents: (N_T=100, seed 0), (100, 1), (100, 2), (250, 0), ...
@@ -9,7 +10,6 @@ hyperparameters and its seed, so the whole population is one ``vmap`` and one co
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections.abc import Mapping, Sequence
 
@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from advisor_jax.agent.config import HPARAM_NAMES, HParams, validate_hparams
+from advisor_jax.agent.hparams import HPARAM_NAMES
+from advisor_jax.agent.settings import flat_fields, flat_items, from_flat, replace_flat, validate
 
 SEED_MAX = 2**64 - 1
 """Seeds are 64-bit: ``seed_key`` puts both 32-bit halves into the threefry key."""
@@ -53,32 +54,49 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
 
 
 def build_population(
-    base: HParams, grid: Mapping[str, Sequence[float]], seeds: Sequence[int]
-) -> tuple[HParams, list[dict]]:
+    base,
+    grid: Mapping[str, Sequence[float]],
+    seeds: Sequence[int],
+    points: Sequence[Mapping[str, float]] | None = None,
+) -> tuple[object, list[dict]]:
     """Cartesian product of ``grid`` (first key slowest) × ``seeds`` (fastest).
 
-    Returns the stacked hyperparameters (every leaf float32 [agents]) and one row per agent:
-    ``{"index", "seed", **hyperparameters}``.
+    ``base``: the agent type's hyperparameters (``HParams`` or ``BaselineHParams``); the
+    grid names them flat. ``points``: the grid points to train, each ``{name: value}`` over
+    exactly ``grid``'s names, in place of the product of ``grid``'s values (a study's piece
+    holds a subset of points, or points whose values depend on each other). Returns the
+    stacked hyperparameters (every leaf float32 [agents]) and one row per agent:
+    ``{"index", "seed", **hyperparameters}`` (flat names).
     """
     if not seeds:
         raise ValueError("need at least one seed")
     for seed in seeds:
         check_seed(seed)
+    fields = flat_fields(base)
     for name, values in grid.items():
-        if name not in HPARAM_NAMES:
+        if name not in fields:
             raise ValueError(f"unknown hyperparameter {name!r}")
         if len(values) == 0:
             raise ValueError(f"empty value list for {name!r}")
     names = list(grid)
+    combos = list(itertools.product(*(grid[n] for n in names)))
+    if points is not None:
+        for point in points:
+            if set(point) != set(names):
+                raise ValueError(f"grid point {dict(point)} must set exactly {names}")
+        combos = [tuple(point[n] for n in names) for point in points]
+        if not combos:
+            raise ValueError("need at least one grid point")
     rows = []
-    for values in itertools.product(*(grid[n] for n in names)):
+    for values in combos:
         for seed in seeds:
-            hp = dataclasses.replace(base, **dict(zip(names, values, strict=True)))
-            rows.append({"seed": int(seed), **{n: float(getattr(hp, n)) for n in HPARAM_NAMES}})
+            hp = replace_flat(base, **dict(zip(names, values, strict=True)))
+            flat = {n: float(v) for n, v in flat_items(hp).items()}
+            rows.append({"seed": int(seed), **flat})
     for i, row in enumerate(rows):
         row["index"] = i
-    stacked = HParams(**{n: np.array([r[n] for r in rows], np.float32) for n in HPARAM_NAMES})
-    validate_hparams(stacked)
+    stacked = from_flat(base, {n: np.array([r[n] for r in rows], np.float32) for n in fields})
+    validate(stacked)
     return jax.tree_util.tree_map(jnp.asarray, stacked), rows
 
 
@@ -115,6 +133,6 @@ def agent_keys(seeds: Sequence[int]) -> jax.Array:
     return jnp.stack([seed_key(s) for s in seeds])
 
 
-def index_population(hp: HParams, i: int) -> HParams:
+def index_population(hp, i: int):
     """The hyperparameters of agent ``i`` of a stacked population."""
     return jax.tree_util.tree_map(lambda x: x[i], hp)

@@ -22,8 +22,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 import envs
+from advisor_jax.agent.hparams import rl_hparams
 from advisor_jax.agent.selector import expected_max_firing_rate
 from advisor_jax.fileio import atomic_write_bytes, atomic_write_npz
+from advisor_jax.stats import format_interval, t_interval
 
 FIRING_WINDOW = 30  # w of Eq. (11), as in Fig. 10
 METRIC_NAMES = (
@@ -118,6 +120,7 @@ def episode_metrics(state, hp, n_total: int) -> dict[str, np.ndarray]:
     played = outcome > 0
     safe = np.maximum(length, 1)
     episode = np.arange(n_total)[None, :]
+    hp = rl_hparams(hp)
     eps_start = np.asarray(hp.eps_start)[:, None]
     eps_decay = np.asarray(hp.eps_decay)[:, None]
     n_t = np.asarray(hp.advisor_episodes)[:, None]
@@ -204,19 +207,6 @@ def read_training_log(log_path: Path, n_agents: int) -> dict[str, np.ndarray]:
     return out
 
 
-def mean_ci95(values: Sequence[float]) -> tuple[float, float]:
-    """Mean and half-width of a Student-t 95 % confidence interval (NaN-free input)."""
-    x = np.asarray([v for v in values if v is not None and np.isfinite(v)], np.float64)
-    if x.size == 0:
-        return math.nan, math.nan
-    if x.size == 1:
-        return float(x[0]), math.nan
-    from scipy import stats
-
-    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
-    return float(x.mean()), float(half)
-
-
 def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) -> None:
     """Per grid point: final training success and evaluation success, mean ± 95 % CI."""
     agents = summary["agents"]
@@ -234,14 +224,14 @@ def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) ->
         last = metrics["outcome"][ok, -tail:]
         train = [float(np.mean(row[row > 0] == envs.GOAL)) for row in last if (row > 0).any()]
         cells = [group_label(key, grid, summary["agent"]), f"{len(ok)}/{len(members)}"]
-        cells.append(_pct(*mean_ci95(train)))
+        cells.append(_pct(t_interval(train)))
         for arena in evaluation:
-            cells.append(_pct(*mean_ci95([evaluation[arena]["success"][m] for m in ok])))
+            cells.append(_pct(t_interval([evaluation[arena]["success"][m] for m in ok])))
         table.add_row(*cells)
     console.print(table)
 
 
-def _pct(mean: float, half: float) -> str:
-    if math.isnan(mean):
-        return "–"
-    return f"{100 * mean:.1f} %" + ("" if math.isnan(half) else f" ± {100 * half:.1f}")
+def _pct(interval) -> str:
+    """``"50.0 ± 9.1 %"`` (no interval below 3 seeds: ``stats.format_interval``)."""
+    text = format_interval(interval, scale=100)
+    return text if text == "–" else f"{text} %"

@@ -10,33 +10,35 @@ import numpy as np
 
 from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training import checkpoint, phases, plots, reporting
+from advisor_jax.training import checkpoint, plots, reporting
 
 
-def write_episode_metrics(out_dir, state, hp, agents, schedule=None):
+def write_episode_metrics(out_dir, state, hp, agents, phases=None):
     """metrics.npz and episodes.csv of the episodes played so far (an interrupted run's too:
     its analysis need not wait for --resume); returns (metrics, per-chunk log series). A
-    baseline's episodes carry their phase (``phase``: index into ``phase_names``)."""
+    baseline's episodes carry their phase (``phases``: the program's ``PhaseReport``;
+    ``phase``: index into its ``names``)."""
     n_total = np.asarray(state.log.outcome).shape[-1]
     metrics = reporting.episode_metrics(state, hp, n_total)
     phase_names = None
-    if schedule is not None:
-        metrics["phase"] = phases.episode_phases(schedule, hp, n_total)
-        phase_names = schedule.names
+    if phases is not None:
+        metrics["phase"] = phases.episode_phases(hp, n_total)
+        phase_names = phases.names
     series = reporting.read_training_log(out_dir / "train_log.jsonl", len(agents))
     metrics |= {f"log/{name}": values for name, values in series.items()}  # per chunk
     reporting.write_metrics(out_dir, metrics, agents, phase_names)
     return metrics, series
 
 
-def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, schedule, *,
+def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, *,
                train_seconds, eval_episodes, eval_arenas, eval_key) -> dict:  # fmt: skip
     """Final parameters, metrics, evaluation, figures and the summary (process 0, host
     state of the real agents); returns the summary written to run.json."""
     n_total = cfg.episodes
     run_file = out_dir / "run.json"
-    checkpoint.save_tree(out_dir / "params", final_params(state))
-    metrics, series = write_episode_metrics(out_dir, state, hp, agents, schedule)
+    extra = {} if phases is None else phases.params(state)
+    checkpoint.save_tree(out_dir / "params", final_params(state, cfg, extra))
+    metrics, series = write_episode_metrics(out_dir, state, hp, agents, phases)
     evaluation = {}
     if eval_episodes:
         evaluators = {
@@ -79,8 +81,9 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, schedule
     return summary
 
 
-def final_params(state) -> dict:
-    """The trained networks of every agent (leading axis), as params/ holds them."""
+def final_params(state, cfg, extra: dict | None = None) -> dict:
+    """The trained networks of every agent (leading axis), as params/ holds them; ``extra``:
+    what the program adds (``PhaseReport.params``: MCP+MF's dynamics model)."""
     learner = state.learner
     params = {
         "actor": learner.actor,
@@ -88,10 +91,6 @@ def final_params(state) -> dict:
         "target_actor": learner.target_actor,
         "target_critic": learner.target_critic,
     }
-    if state.snapshots is not None:  # [agents, K, ...]: TrainConfig.snapshot_episodes
+    if cfg.snapshot_episodes:  # [agents, K, ...]
         params["actor_snapshots"] = state.snapshots.actor
-    model = getattr(getattr(state.prior, "data", None), "model", None)
-    if model is not None:  # MCP+MF: the dynamics model's weights and normaliser
-        params["model"] = model.params
-        params["model_norm"] = model.norm
-    return params
+    return {**params, **(extra or {})}

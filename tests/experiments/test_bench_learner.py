@@ -1,20 +1,14 @@
-"""experiments/bench_learner.py times the update step training runs: on GPUs the steady
-program's blocks of d updates (the first with the actor step), with no conditional, else a
+"""``advisor_jax.bench.learner_loop`` times the update step training runs: on GPUs the
+steady program's blocks of d updates (the first with the actor step), with no conditional, else a
 ``lax.cond`` per update. Both loops must compute the same updates."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
-
-import bench_learner  # noqa: E402
-
-from advisor_jax.agent.config import parse_agent  # noqa: E402
+from advisor_jax.agent.config import parse_agent
+from advisor_jax.bench import learner_loop
 
 TINY_LEARNER = parse_agent(
     "ATD3+AfDP", actor_hidden=(16, 16), critic_state_hidden=32, critic_hidden=(32, 32),
@@ -26,9 +20,9 @@ def test_the_block_loop_computes_the_conditional_loops_updates():
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     out = {}
     for steady in (False, True):
-        learner, loop = bench_learner.make_update_loop(TINY_LEARNER, 6, steady=steady)
+        learner, loop = learner_loop.make_update_loop(TINY_LEARNER, 6, steady=steady)
         states = jax.jit(jax.vmap(learner.init))(keys)
-        replays = jax.vmap(bench_learner.fill_replay, in_axes=(None, 0))(256, keys)
+        replays = jax.vmap(learner_loop.fill_replay, in_axes=(None, 0))(256, keys)
         out[steady] = jax.device_get(loop(states, replays, keys))
     general, steady = out[False], out[True]
     assert general.actor_updates.tolist() == steady.actor_updates.tolist() == [3, 3]
@@ -38,8 +32,8 @@ def test_the_block_loop_computes_the_conditional_loops_updates():
 
 
 def test_a_loop_that_is_not_whole_blocks_keeps_the_conditional():
-    learner, loop = bench_learner.make_update_loop(TINY_LEARNER, 5, steady=True)
+    learner, loop = learner_loop.make_update_loop(TINY_LEARNER, 5, steady=True)
     keys = jax.random.split(jax.random.PRNGKey(0), 1)
     states = jax.jit(jax.vmap(learner.init))(keys)
-    replays = jax.vmap(bench_learner.fill_replay, in_axes=(None, 0))(256, keys)
+    replays = jax.vmap(learner_loop.fill_replay, in_axes=(None, 0))(256, keys)
     assert jax.device_get(loop(states, replays, keys)).actor_updates.tolist() == [3]

@@ -5,20 +5,17 @@ are measured between consecutive kernels."""
 from __future__ import annotations
 
 import re
-import sys
-from pathlib import Path
 
 import jax.numpy as jnp
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
+from advisor_jax.agent.config import HParams
+from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import population_functions
+from tests.experiments.scripts import load_script
+from tests.training.conftest import TINY
 
-import profile_train  # noqa: E402
-
-from advisor_jax.agent.config import HParams  # noqa: E402
-from advisor_jax.training.host_loop import population_functions  # noqa: E402
-from advisor_jax.training.population import agent_keys, build_population  # noqa: E402
-from tests.train.conftest import TINY  # noqa: E402
+profile_train = load_script("profile_train")
 
 PREFIX = "jit(chunk)/vmap()/while/body/closed_call/learn/cond/branch_1_fun/while/body/"
 

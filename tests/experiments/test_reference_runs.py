@@ -1,18 +1,17 @@
-"""``--reference TREE`` of the benchmarks (experiments/common.run_reference): the other
+"""``--reference TREE`` of the benchmarks (experiments/run_reference): the other
 checkout's script runs with the same options, its imports resolve to that checkout and not
 to this one, its report comes back; bench_train.py pairs its rows with this tree's."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "experiments"))
+from advisor_jax.bench.measure import run_reference
+from tests.experiments.scripts import load_script
 
-import bench_train  # noqa: E402
-import common  # noqa: E402
+bench_train = load_script("bench_train")
 
 # A stand-in for experiments/<script> of another checkout: it reports its argv and where
 # ``advisor_jax`` was imported from.
@@ -38,7 +37,7 @@ def _tree(root: Path) -> Path:
 
 def test_the_reference_runs_with_its_own_package_and_our_options(tmp_path):
     tree = _tree(tmp_path / "ref")
-    report = common.run_reference(tree, "fake.py", ["--agents", "1", "64"], "fake.json")
+    report = run_reference(tree, "fake.py", ["--agents", "1", "64"], "fake.json")
     assert report["rows"] == [{"agents": 1}]
     assert report["argv"] == ["--agents", "1", "64"]
     assert Path(report["package"]).resolve() == (tree / "advisor_jax" / "__init__.py").resolve()
@@ -46,7 +45,7 @@ def test_the_reference_runs_with_its_own_package_and_our_options(tmp_path):
 
 def test_a_tree_without_the_script_is_named(tmp_path):
     with pytest.raises(SystemExit, match="no experiments/bench_train.py"):
-        common.run_reference(tmp_path, "bench_train.py", [], "bench_train.json")
+        run_reference(tmp_path, "bench_train.py", [], "bench_train.json")
 
 
 def test_bench_train_pairs_rows_by_agents_devices_and_precision():

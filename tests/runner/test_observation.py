@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import types
 from fractions import Fraction
 
 import numpy as np
@@ -112,50 +111,6 @@ def test_ring_scan_fixture():
     np.testing.assert_allclose(p, np.clip(d - 0.2, 0.0, 1.0), atol=1e-7)
 
 
-def _generic_numpy():
-    """numpy behind a different module object: reduce_to_zones takes its generic (jax) path."""
-    return types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if not k.startswith("_")})
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    seed=st.integers(0, 2**31 - 1),
-    n=st.integers(1, 300),
-    yaw=st.sampled_from([0.0, 180.0, -37.5, 22.5]),
-    offset=st.sampled_from([0.0, 0.22]),
-)
-def test_fast_zone_path_is_bit_identical_to_generic(seed, n, yaw, offset):
-    """``reduce_to_zones``' numpy scatter-minimum equals its membership-matrix path (the
-    simulator's) exactly, including readings exactly on zone boundaries and at ±180°."""
-    rng = np.random.default_rng(seed)
-    deg = rng.uniform(-400.0, 400.0, n)
-    deg[: n // 3] = rng.integers(-32, 32, n // 3) * 22.5  # exact boundaries
-    mm = rng.uniform(0.0, 1500.0, n)
-    mm[rng.random(n) < 0.2] = 0.0
-    angles, ranges = scan_to_robot_frame(np.stack([np.full(n, 15.0), deg, mm], 1), yaw)
-    valid = rng.random(n) < 0.9
-    fast = zones.reduce_to_zones(angles, ranges, valid, range_offset=offset)
-    slow = zones.reduce_to_zones(angles, ranges, valid, range_offset=offset, xp=_generic_numpy())
-    np.testing.assert_array_equal(fast, slow)
-    # Non-finite angles and ranges are dropped identically by both paths.
-    bad_a, bad_r = angles.copy(), ranges.copy()
-    bad_a[rng.random(n) < 0.1] = np.nan
-    bad_r[rng.random(n) < 0.1] = rng.choice([np.nan, np.inf, -np.inf])
-    fast = zones.reduce_to_zones(bad_a, bad_r, None, range_offset=offset)
-    with np.errstate(invalid="ignore"):
-        slow = zones.reduce_to_zones(bad_a, bad_r, None, range_offset=offset, xp=_generic_numpy())
-    np.testing.assert_array_equal(fast, slow)
-    # and against a plain Python loop over the documented zone rule (zone_index)
-    ref = np.full(16, 1.0)
-    for a, r, ok in zip(angles, ranges, valid, strict=True):
-        if ok and r > 0:
-            k = int(zones.zone_index(np.array([a]))[0])
-            ref[k] = min(ref[k], min(max(r - offset, 0.0), 1.0))
-    np.testing.assert_array_equal(
-        zones.reduce_to_zones(angles, ranges, valid, range_offset=offset), ref
-    )
-
-
 def rule_zone(cw_deg: float, mount_yaw_deg: float) -> int:
     """spec.py's zone rule in exact rational arithmetic: zone k holds robot-frame angles a
     with start - w (k + 1) < a <= start - w k (mod 360), a = mount_yaw - clockwise angle."""
@@ -184,8 +139,9 @@ def rule_zones(points, kept, mount_yaw_deg, offset, max_range=1.0) -> np.ndarray
 )
 def test_car_zone_path_follows_the_rule_and_matches_the_simulator(seed, n, yaw, offset):
     """The car's reduction equals the exact rule everywhere (exact boundaries, ±180°, angles
-    beyond [0, 360), off the 1/64° grid), and the simulator's float path on every scan that
-    has no reading exactly on a zone boundary."""
+    beyond [0, 360), off the 1/64° grid), and the simulator's on every scan that has no
+    reading exactly on a zone boundary off the 1/64° grid (tests/contract/test_zones.py:
+    on the grid, everywhere)."""
     rng = np.random.default_rng(seed)
     deg = rng.uniform(-400.0, 400.0, n)  # off any boundary (a double hits one with p ~ 0)
     grid = rng.random(n) < 0.5
@@ -206,7 +162,7 @@ def test_car_zone_path_follows_the_rule_and_matches_the_simulator(seed, n, yaw, 
     angles, ranges = scan_to_robot_frame(points, yaw)
     np.testing.assert_array_equal(
         rplidar_zones(points, ~away, mount_yaw_deg=yaw, range_offset=offset),
-        zones.reduce_to_zones(angles, ranges, away, range_offset=offset, xp=_generic_numpy()),
+        zones.reduce_to_zones(angles, ranges, away, range_offset=offset),
     )
 
 
@@ -224,13 +180,13 @@ def test_zone_table(yaw):
             assert table[n % len(table)] == rule_zone(n / 64, yaw), n
 
 
-def test_exact_boundaries_differ_from_float_radians():
-    """Why the car does not use zone_index's float radians: 157.5° clockwise is -157.5° CCW,
-    the top of zone 11 (-180°, -157.5°]; in radians it rounds to zone 10."""
+def test_exact_boundaries_follow_the_rule_in_both():
+    """157.5° clockwise is -157.5° CCW, the top of zone 11 (-180°, -157.5°]; in radians it
+    rounds below the boundary, which zone_index's snap to the 1/64° grid undoes."""
     assert rule_zone(157.5, 0.0) == 11
     assert zone_table(0.0)[157 * 64 + 32] == 11
     assert zone_of(one_point(157.5)) == [11]
-    assert int(zones.zone_index(np.radians(np.array([-157.5])))[0]) == 10
+    assert int(zones.zone_index(np.radians(np.array([-157.5])))[0]) == 11
 
 
 def test_mount_yaw_on_the_rplidar_grid():

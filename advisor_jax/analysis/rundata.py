@@ -1,0 +1,56 @@
+"""Kept run data: what a report needs of a run directory, small enough to commit.
+
+``compact_run`` copies a finished run's JSON files (run.json, eval.json, eval_episode<N>.json,
+eval_seed<S>.json, command.json) and its metrics.npz, compressed, with float64 series stored
+as float32 and the episode outcome and length as small integers; never params/,
+checkpoints/ (replay buffers), episodes.csv, train_log.jsonl (both already in
+metrics.npz) or figures. ``runs.load_runs`` reads the result like any run directory.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from advisor_jax.fileio import atomic_write_bytes, atomic_write_json
+
+KEPT_JSON = ("run.json", "eval.json", "eval_episode*.json", "eval_seed*.json")
+DROPPED_KEYS = ("machine",)  # command.json: where a run ran, beyond its device
+
+
+def compact_metrics(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """float64 → float32; outcome → int8 and length → int16 where they fit."""
+    out = {}
+    for name, values in arrays.items():
+        if values.dtype == np.float64:
+            values = values.astype(np.float32)
+        elif name in ("outcome", "phase") and values.size and np.abs(values).max() < 128:
+            values = values.astype(np.int8)
+        elif name == "length" and values.size and values.max() < 2**15:
+            values = values.astype(np.int16)
+        out[name] = values
+    return out
+
+
+def compact_run(src: Path, dest: Path) -> None:
+    """The compact copy of run directory ``src`` in ``dest`` (module docstring)."""
+    src, dest = Path(src), Path(dest)
+    if src.resolve() == dest.resolve():
+        raise ValueError(f"compact_run copies: {dest} must not be the run itself")
+    dest.mkdir(parents=True, exist_ok=True)
+    for pattern in KEPT_JSON:
+        for path in src.glob(pattern):
+            shutil.copy2(path, dest / path.name)
+    if (src / "command.json").is_file():
+        record = json.loads((src / "command.json").read_text())
+        atomic_write_json(
+            dest / "command.json", {k: v for k, v in record.items() if k not in DROPPED_KEYS}
+        )
+    if (src / "metrics.npz").is_file():
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **compact_metrics(dict(np.load(src / "metrics.npz"))))
+        atomic_write_bytes(dest / "metrics.npz", buf.getvalue())

@@ -1,0 +1,354 @@
+"""The one loader of finished runs: run directories → runs → points of pooled seeds.
+
+    runs = load_runs([Path("results/table1_stable/run_data")])   # every finished run below
+    points = pool(runs)                                           # one Point per setting
+
+A **run** is a directory that ``advisor-jax train`` (or ``advisor-jax sweep``) wrote:
+run.json, eval.json (its agents on the episodes of its evaluation seed),
+eval_episode<N>.json (its actors kept at episode N, ``--snapshot-episodes``),
+eval_seed<S>.json (re-evaluated on seed S's episodes, ``experiments/reevaluate.py``) and
+metrics.npz (per agent × episode; ``compact`` keeps it small). Unfinished runs are left out
+with a note.
+
+A **point** is an agent type at one budget (N_total, or N of a kept actor) and one setting
+of every hyperparameter and static setting that changes what an agent learns; its seeds
+come from any run at that setting (a seed found twice counts once, the first, with a
+note). Runs that are pooled or compared must have been evaluated on the same episodes:
+per training arena, one evaluation seed, one episode count, the same arenas. Where their
+own evaluation seeds differ, a seed every run was also evaluated on is taken (or the one
+``eval_seed`` names); otherwise ``load_runs`` refuses, naming the runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Sequence
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from advisor_jax.agent.config import HPARAM_NAMES, AgentConfig, TrainConfig, preset
+from advisor_jax.agent.hparams import HPARAM_DEFAULTS
+from advisor_jax.agent.settings import flat_items
+
+AGENT_FIELDS = (
+    "actor_hidden",
+    "critic_state_hidden",
+    "critic_hidden",
+    "buffer_size",
+    "batch_size",
+    "policy_delay",
+    "learning_starts",
+    "precision",
+    "baseline",
+)
+TRAIN_FIELDS = ("arena", "envs_per_agent", "updates_per_step", "max_episode_steps", "motion")
+EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
+
+
+@dataclasses.dataclass
+class Run:
+    path: Path
+    summary: dict  # run.json
+    eval_seed: int  # the evaluation in use (own or re-evaluated)
+    evaluation: dict  # {arena: {"success": [agents], ..., "episodes": n}}
+    snapshots: dict  # {N: evaluation} of the actors kept at episode N (own eval seed only)
+    command: str | None
+
+    @property
+    def agent(self) -> str:
+        return self.summary["agent"]
+
+    @property
+    def config(self) -> dict:
+        return self.summary["config"]
+
+    @property
+    def arena(self) -> str:
+        return self.config.get("arena", "training")
+
+    @property
+    def evaluated_on(self) -> tuple:
+        """What its agents were scored on: (eval seed, ((arena, episodes), ...))."""
+        return (
+            self.eval_seed,
+            tuple((a, ev["episodes"]) for a, ev in sorted(self.evaluation.items())),
+        )
+
+    @cached_property
+    def _metrics(self) -> dict | None:
+        path = self.path / "metrics.npz"
+        return dict(np.load(path)) if path.is_file() else None
+
+    def metrics(self) -> dict | None:
+        """metrics.npz as {name: array} (per agent × episode; ``log/...`` per chunk)."""
+        return self._metrics
+
+
+@dataclasses.dataclass
+class RunSet:
+    runs: list[Run]
+    notes: list[str]
+    advisors: dict  # {arena: ``advisor-jax evaluate --policy advisor --json`` output}
+
+
+def own_eval_seed(summary: dict) -> int:
+    """The run's evaluation seed (runs before ``--eval-seed`` used their first seed)."""
+    return int(summary.get("eval_seed", summary["agents"][0]["seed"]))
+
+
+def _evaluations(path: Path, summary: dict) -> dict[int, dict]:
+    """{eval seed: evaluation} the run directory holds."""
+    out = {own_eval_seed(summary): summary.get("evaluation") or {}}
+    for extra in path.glob("eval_seed*.json"):
+        out.setdefault(int(extra.stem.removeprefix("eval_seed")), json.loads(extra.read_text()))
+    return out
+
+
+def _command(path: Path, summary: dict) -> str | None:
+    """The command that trained the run: run.json's (sweep), an older script's record, or
+    command.json beside it."""
+    for key in ("table1", "afp_study"):
+        if (summary.get(key) or {}).get("command"):
+            return summary[key]["command"]
+    if summary.get("command"):
+        return summary["command"]
+    extra = path / "command.json"
+    return json.loads(extra.read_text()).get("command") if extra.is_file() else None
+
+
+def find_runs(dirs: Sequence[Path]) -> tuple[list[tuple[Path, dict]], list[str], dict]:
+    """Finished runs below ``dirs`` (in the order given, sorted within), notes on the others,
+    and the advisor evaluations found directly in ``dirs``."""
+    found, notes, advisors = [], [], {}
+    for root in dirs:
+        root = Path(root)
+        if not root.is_dir():
+            raise ValueError(f"{root} is not a directory of runs")
+        for run_file in sorted(root.rglob("run.json")):
+            if "checkpoints" in run_file.parts:
+                continue
+            summary = json.loads(run_file.read_text())
+            if summary.get("status") == "finished":
+                found.append((run_file.parent, summary))
+            else:
+                notes.append(f"{run_file.parent}: status {summary.get('status')!r}, left out")
+        for candidate in sorted(root.glob("*.json")):
+            record = json.loads(candidate.read_text())
+            if isinstance(record, dict) and record.get("policy") == "advisor":
+                advisors[record["arena"]] = {**record, "file": str(candidate)}
+    return found, notes, advisors
+
+
+def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:
+    """Every finished run below ``dirs``, each on the evaluation they all share (module
+    docstring); ValueError naming the runs where there is none."""
+    found, notes, advisors = find_runs(dirs)
+    by_arena: dict[str, list[tuple[Path, dict, dict]]] = {}
+    for path, summary in found:
+        arena = summary["config"].get("arena", "training")
+        by_arena.setdefault(arena, []).append((path, summary, _evaluations(path, summary)))
+    runs = []
+    for arena, members in by_arena.items():
+        chosen = eval_seed if eval_seed is not None else _shared_seed(members, arena)
+        for path, summary, evaluations in members:
+            if chosen not in evaluations:
+                raise ValueError(
+                    f"{path} was not evaluated on eval seed {chosen}: run python "
+                    f"experiments/reevaluate.py {path} --eval-seed {chosen}, or leave it out"
+                )
+            own = chosen == own_eval_seed(summary)
+            snapshots = {
+                int(n): ev for n, ev in (summary.get("evaluation_at_episode") or {}).items()
+            }
+            runs.append(
+                Run(
+                    path,
+                    summary,
+                    chosen,
+                    evaluations[chosen],
+                    snapshots if own else {},
+                    _command(path, summary),
+                )
+            )
+            if not own and summary.get("evaluation_at_episode"):
+                notes.append(
+                    f"{path}: its kept actors were evaluated on eval seed "
+                    f"{own_eval_seed(summary)} only, left out"
+                )
+        on = {r.evaluated_on for r in runs if r.arena == arena}
+        if len(on) > 1:
+            raise ValueError(
+                f"runs trained in {arena!r} were evaluated on different episodes and cannot be "
+                "pooled: "
+                + "; ".join(
+                    f"{r.path} (eval seed {r.eval_seed}, "
+                    + ", ".join(f"{n} {a}" for a, n in r.evaluated_on[1])
+                    + ")"
+                    for r in runs
+                    if r.arena == arena and r.evaluated_on != min(on)
+                )[:400]
+                + f" vs {min(on)}; report them apart"
+            )
+    return RunSet(runs, notes, advisors)
+
+
+def _shared_seed(members, arena: str) -> int:
+    own = {own_eval_seed(s) for _, s, _ in members}
+    if len(own) == 1:
+        return own.pop()
+    shared = set.intersection(*(set(e) for _, _, e in members))
+    if not shared:
+        names = ", ".join(f"{p} ({own_eval_seed(s)})" for p, s, _ in members)[:400]
+        raise ValueError(
+            f"runs trained in {arena!r} were evaluated on different episodes (eval seeds: "
+            f"{names}) and no seed is common to all; report them apart or re-evaluate them "
+            "(experiments/reevaluate.py)"
+        )
+    return min(shared)
+
+
+# -- points ---------------------------------------------------------------------------------
+
+
+def _setting(value):
+    if isinstance(value, list):
+        return tuple(_setting(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _setting(v)) for k, v in value.items()))
+    if isinstance(value, float):
+        return float(f"{value:.9g}")
+    return value
+
+
+def settings_of(summary: dict, row: dict) -> dict:
+    """Everything that changes what one agent learns: every hyperparameter (a field an older
+    run.json lacks: ``HParams``'s default, what that run trained with) and static setting."""
+    config = summary["config"]
+    agent_defaults, train_defaults = AgentConfig(), TrainConfig()
+    out = {n: _setting(float(row.get(n, HPARAM_DEFAULTS[n]))) for n in HPARAM_NAMES}
+    for field in AGENT_FIELDS:
+        out[field] = _setting(config["agent"].get(field, getattr(agent_defaults, field)))
+    for field in TRAIN_FIELDS:
+        out[field] = _setting(config.get(field, getattr(train_defaults, field)))
+    return out
+
+
+def preset_differences(preset_name: str, agent: str, settings: dict) -> dict:
+    """The settings in which an agent differs from ``preset_name``'s for its type."""
+    static, hp = preset(preset_name, agent)
+    hp_values = {**HPARAM_DEFAULTS, **flat_items(hp)}
+    out = {}
+    for name, value in settings.items():
+        if name in HPARAM_NAMES:
+            default = float(hp_values[name])
+        elif name in AGENT_FIELDS:
+            default = _setting(dataclasses.asdict(static.agent)[name])
+        else:
+            default = _setting(getattr(static, name))
+        same = (
+            math.isclose(value, default, rel_tol=1e-6)
+            if isinstance(value, float)
+            else value == default
+        )
+        if not same:
+            out[name] = value
+    return out
+
+
+@dataclasses.dataclass
+class Seed:
+    seed: int
+    run: Run
+    index: int  # the agent's index in its run
+    budget: int
+    snapshot: bool  # a kept actor of a longer run
+    evaluation: dict  # {arena: {"success": x, ...}} (None: diverged)
+
+    def episodes(self, name: str) -> np.ndarray | None:
+        """Per-episode metric ``name`` over this agent's first ``budget`` episodes."""
+        metrics = self.run.metrics()
+        if metrics is None or name not in metrics:
+            return None
+        return np.asarray(metrics[name][self.index, : self.budget], np.float64)
+
+
+@dataclasses.dataclass
+class Point:
+    agent: str
+    budget: int
+    preset: str
+    settings: dict
+    label: dict  # differences from the preset
+    seeds: dict  # {seed: Seed}
+
+    @property
+    def arena(self) -> str:
+        return self.settings["arena"]
+
+    def scores(self, arena: str, key: str = "success") -> dict:
+        """{seed: value} of the evaluation in ``arena`` (None: diverged or absent)."""
+        return {s: (r.evaluation.get(arena) or {}).get(key) for s, r in self.seeds.items()}
+
+    def episodes(self, name: str) -> np.ndarray | None:
+        """[seeds, budget] of a per-episode metric (None where a run lacks metrics.npz)."""
+        rows = [r.episodes(name) for r in self.seeds.values()]
+        return None if any(r is None for r in rows) else np.stack(rows)
+
+    def text(self, skip: Sequence[str] = ()) -> str:
+        """``ATD3+AfDP, policy_delay=2`` (the label's settings not in ``skip``)."""
+        extra = [f"{k}={_show(v)}" for k, v in self.label.items() if k not in skip]
+        return ", ".join([self.agent, *extra])
+
+    @property
+    def snapshot(self) -> bool:
+        return any(r.snapshot for r in self.seeds.values())
+
+
+def _show(value) -> str:
+    if isinstance(value, tuple):
+        return "x".join(map(str, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def pool(runset: RunSet) -> tuple[list[Point], list[str]]:
+    """The points of a run set: its runs' agents at every budget (final and kept actors)."""
+    points: dict[tuple, Point] = {}
+    notes = []
+    for run in runset.runs:
+        budgets = [(run.config["episodes"], False, run.evaluation)]
+        budgets += [(n, True, ev) for n, ev in sorted(run.snapshots.items())]
+        name = run.summary.get("preset", "paper")
+        for row in run.summary["agents"]:
+            settings = settings_of(run.summary, row)
+            for budget, snapshot, evaluation in budgets:
+                key = (run.agent, budget, tuple(sorted(settings.items())))
+                point = points.setdefault(
+                    key,
+                    Point(
+                        run.agent,
+                        budget,
+                        name,
+                        settings,
+                        preset_differences(name, run.agent, settings),
+                        {},
+                    ),
+                )
+                seed, i = int(row["seed"]), int(row["index"])
+                if seed in point.seeds:
+                    notes.append(
+                        f"{run.path}: seed {seed} of {point.text()} at {budget} episodes "
+                        f"also in {point.seeds[seed].run.path}; counted once"
+                    )
+                    continue
+                picked = {
+                    a: {k: (ev[k][i] if k in ev else None) for k in EVAL_KEYS}
+                    for a, ev in evaluation.items()
+                }
+                point.seeds[seed] = Seed(seed, run, i, budget, snapshot, picked)
+    for point in points.values():
+        point.seeds = dict(sorted(point.seeds.items()))
+    return list(points.values()), notes

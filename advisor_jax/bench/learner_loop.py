@@ -1,0 +1,70 @@
+"""The learner's update step as training runs it, in a loop to time or profile
+(``bench_learner.py``, ``profile_learner.py``), and a replay buffer filled to sample from."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from advisor_jax.agent.config import HParams
+from advisor_jax.agent.learner import make_learner
+from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
+from advisor_jax.contract import spec
+from advisor_jax.training.program import compiler_options, twin_inputs_per_critic
+
+SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
+             buffer_size=4096, batch_size=128)  # fmt: skip
+
+
+def make_update_loop(cfg, n_updates: int, steady: bool = False):
+    """``n_updates`` calls of the learner's update, the exact step training runs, in a scan,
+    each update deciding its delayed actor step by ``lax.cond`` and compiled with XLA's
+    scheduling, as training's general program runs it.
+
+    ``steady``: the loop as the latency-bound program (populations of at most
+    ``program.LATENCY_BOUND_AGENTS``) runs its updates instead: blocks of d updates
+    written out in a row whose first takes the actor step, no conditional, overlapping
+    kernels and a whole-loop graph. Timed alone that way the update is not faster
+    (``results/bench_train_steady/``): the program pays in the full step, where the
+    collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
+    learner = make_learner(cfg, inputs_per_critic=twin_inputs_per_critic())  # as training's
+    hp = HParams()
+    steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
+
+    def one_agent(learner_state, replay, key):
+        def update(carry, u, update_fn=None):
+            state, key = carry
+            key, k_sample, k_critic = jax.random.split(key, 3)
+            if update_fn is None:  # the delay decided from the index by a cond
+                state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u)
+            else:
+                state, _, _ = update_fn(state, replay, k_sample, k_critic, hp)
+            return (state, key), None
+
+        def block(carry, u):  # d updates from u, a multiple of d, written out as training's
+            for j in range(delay):
+                with_actor = learner.update_with_actor if j == 0 else learner.update_critic_only
+                carry, _ = update(carry, u + j, with_actor)
+            return carry, None
+
+        body, starts = (
+            (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
+        )
+        (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), starts)
+        return learner_state
+
+    options = compiler_options(cfg.precision, overlap=steady, steady=steady)  # as training's
+    return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)
+
+
+def fill_replay(capacity: int, key) -> object:
+    k1, k2, k3 = jax.random.split(key, 3)
+    data = Transition(
+        obs=jax.random.uniform(k1, (capacity, spec.OBS_SIZE)),
+        action=jax.random.uniform(k2, (capacity, spec.ACTION_SIZE)),
+        advisor_action=jax.random.uniform(k3, (capacity, spec.ACTION_SIZE)),
+        reward=jnp.zeros(capacity),
+        next_obs=jax.random.uniform(k1, (capacity, spec.OBS_SIZE)),
+        terminal=jnp.zeros(capacity),
+    )
+    return replay_add(replay_init(capacity), data)

@@ -1,0 +1,78 @@
+"""Writing a measurement down: markdown tables, the command that reproduces it, atomic files."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import sys
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from advisor_jax.fileio import atomic_write_text
+
+
+def markdown_table(
+    header: Sequence[str],
+    rows: Iterable[Sequence[Any]],
+    formats: Sequence[str] = (),
+    align: str = "lr",
+) -> list[str]:
+    """A markdown table as lines. ``formats``: a spec per column for ``format()`` (".1f",
+    ",.0f"; "": ``str``); ``align``: "l" or "r" per column. In both the last entry stands for
+    the columns after it: ``align="lr"`` is a label then numbers, ``formats=("", ".1f")`` a
+    label then numbers to one decimal."""
+    width = len(header)
+    align = (align + align[-1] * width)[:width]
+    specs = (*formats, *[formats[-1] if formats else ""] * width)[:width]
+    lines = [
+        "| " + " | ".join(header) + " |",
+        "|" + "|".join("---:" if a == "r" else "---" for a in align) + "|",
+    ]
+    for row in rows:
+        cells = (format(cell, spec) for cell, spec in zip(row, specs, strict=True))
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def changed_options(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, skip: Iterable[str] = ("out",)
+) -> list[str]:
+    """The command-line options of ``args`` that differ from ``parser``'s defaults, as argv:
+    a command line that reproduces the run without restating every default."""
+    argv = []
+    for key, value in vars(args).items():
+        if key in skip or value == parser.get_default(key):
+            continue
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            argv.append(flag)
+        elif isinstance(value, list | tuple):
+            argv += [flag, *map(str, value)]
+        else:
+            argv += [flag, str(value)]
+    return argv
+
+
+def command_line(script: str, argv: Sequence[str], scheduling: bool = False) -> str:
+    """``python SCRIPT ARGV...``, quoted for a shell, for a report's "Command:" line. With
+    ``scheduling`` also the ``nice`` and ``taskset`` the process runs under (latency on a
+    CPU depends on them)."""
+    command = shlex.join(["python", script, *map(str, argv)])
+    if scheduling:
+        if os.nice(0) != 0:
+            command = f"nice -n {os.nice(0)} {command}"
+        cpus = sorted(os.sched_getaffinity(0))
+        if len(cpus) < (os.cpu_count() or 0):
+            command = f"taskset -c {','.join(map(str, cpus))} {command}"
+    return command
+
+
+def write_markdown(path: str | os.PathLike, lines: Sequence[str], echo: bool = False) -> None:
+    """Writes ``lines`` as one markdown file ending in one newline, atomically (a reader never
+    sees half a report), says where on stderr and, with ``echo``, prints it."""
+    text = "\n".join(lines).rstrip("\n") + "\n"
+    atomic_write_text(path, text)
+    print(f"wrote {path}", file=sys.stderr)
+    if echo:
+        print(text, end="")

@@ -1,0 +1,147 @@
+"""``advisor-jax sweep``: run a study file on every local GPU, resumably (docs/sweeps.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+from rich.console import Console
+from rich.table import Table
+
+from advisor_jax.study import plan as planning
+from advisor_jax.study import sweep, throughput
+from advisor_jax.study.spec import StudyError, load_study
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepArgs:
+    """Train every agent of a study file: its pieces on every local GPU at once.
+
+    Examples:
+      advisor-jax sweep experiments/studies/quick.toml --out runs/quick --dry-run
+      advisor-jax sweep experiments/paper/fig6.toml --out runs/fig6      # all local GPUs
+      advisor-jax sweep experiments/paper/fig6.toml --out runs/fig6      # again: resumes
+      advisor-jax sweep experiments/paper/fig6.toml --out runs/fig6 --slurm fig6.sh \
+          --device-memory 80 --device-kind "NVIDIA H100 80GB HBM3"      # then: sbatch fig6.sh
+    """
+
+    study: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="STUDY")]
+    """The study file (TOML; docs/sweeps.md)."""
+    out: Annotated[Path, tyro.conf.arg(metavar="DIR")]
+    """Directory of the sweep: plan.json, runs/<piece>/, logs/. A second call skips the
+    finished pieces and resumes interrupted ones from their checkpoints."""
+    dry_run: bool = False
+    """Print the plan (pieces, memory, estimated time) and train nothing."""
+    piece: int | None = None
+    """Train only piece I of the plan, in this process (what each worker and each Slurm
+    array task runs)."""
+    slurm: Path | None = None
+    """Write a Slurm job-array script (task i trains piece i) to this file instead of
+    training; submit it with sbatch."""
+    sbatch: tuple[str, ...] = ()
+    """Extra #SBATCH options for --slurm without their dashes, e.g. --sbatch partition=gpu
+    account=me time=2:00:00 (each becomes "#SBATCH --partition=gpu", ...)."""
+    devices: int | None = None
+    """Devices the pieces are spread over (default: the local GPUs, one on a CPU)."""
+    device_memory: float | None = None
+    """Plan for devices of this many GiB instead of the local ones (e.g. --slurm from a
+    machine without the cluster's GPUs)."""
+    device_kind: str | None = None
+    """With --device-memory: the device's name as JAX gives it, for the time estimate
+    (e.g. "NVIDIA H100 80GB HBM3")."""
+    max_agents: int | None = None
+    """At most this many agents per piece (default: as many as fit one device)."""
+    no_progress: bool = False
+    """Hide the progress display."""
+
+
+def _plan(args: SweepArgs, study):
+    """The kept plan of --out, else a new one for the devices at hand (or described)."""
+    kept = sweep.load_plan(args.out, study)
+    if kept is not None:
+        return kept, True
+    if args.device_memory is not None:
+        device = planning.Device(args.device_kind or "gpu", int(args.device_memory * 2**30), 0)
+        count = args.devices or 1
+    else:
+        local = planning.local_devices()
+        device, count = local[0], args.devices or len(local)
+    if count < 1:
+        raise StudyError(f"--devices {count}: need at least one device")
+    table = throughput.load_table()
+    return planning.plan_study(study, device, count, args.max_agents, table), False
+
+
+def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
+    title = f"{study.name}: {len(plan.pieces)} pieces, {sum(p.agents for p in plan.pieces)} agents"
+    table = Table(title=title + (f" (the plan kept in {out / 'plan.json'})" if kept else ""))
+    for column in ("piece", "agent", "settings", "seeds", "agents", "est. min", "status"):
+        table.add_column(column, justify="right" if column in ("agents", "est. min") else "left")
+    for p in plan.pieces:
+        group = study.groups[p.group]
+        static = [f"{k}={v}" for k, v in group.static.items()]
+        points = [" ".join(f"{k}={v:g}" for k, v in group.points[i].items()) for i in p.points]
+        points = [text for text in points if text]
+        settings = ", ".join(static) + ("; " + " | ".join(points) if points else "")
+        seeds = f"{p.seeds[0]}-{p.seeds[-1]}" if len(p.seeds) > 1 else str(p.seeds[0])
+        minutes = "–" if p.seconds is None else f"{p.seconds / 60:.1f}"
+        status = sweep.run_status(sweep.run_dir(out, p)) or "not started"
+        table.add_row(
+            str(p.index), group.agent, settings or "–", seeds, str(p.agents), minutes, status
+        )
+    console.print(table)
+    for line in plan.explained:
+        console.print(f"  {line}", highlight=False)
+    makespan = plan.makespan()
+    if makespan is None:
+        console.print("  estimated time: unknown (see above)")
+    else:
+        hours = sum(p.seconds for p in plan.pieces) / 3600
+        console.print(
+            f"  estimated time: {hours:.2f} device-hours; {makespan / 60:.0f} min on "
+            f"{plan.devices} device(s), longest pieces first",
+            highlight=False,
+        )
+
+
+def sweep_command(args: SweepArgs) -> None:
+    """Entry point of ``advisor-jax sweep``."""
+    study = load_study(args.study)  # every check before anything compiles
+    if not str(args.out).strip():
+        raise StudyError("--out '' is empty: name the sweep's directory")
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        console = Console(stderr=True, width=160)
+    plan, kept = _plan(args, study)
+    if args.dry_run:
+        print_plan(console, study, plan, args.out, kept)
+        return
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not kept:
+        sweep.save_plan(args.out, study, plan)
+    if args.piece is not None:
+        how = sweep.run_piece(study, args.out, plan, args.piece, progress=not args.no_progress)
+        console.print(
+            f"piece {args.piece}: {how} ({sweep.run_dir(args.out, plan.pieces[args.piece])})"
+        )
+        return
+    if args.slurm is not None:
+        sweep.write_slurm(args.slurm, study, args.out, plan, list(args.sbatch))
+        print_plan(console, study, plan, args.out, kept)
+        console.print(f"wrote {args.slurm}: submit it with  sbatch {args.slurm}")
+        return
+    print_plan(console, study, plan, args.out, kept)
+    devices = planning.local_devices()[: args.devices or None]
+    result = sweep.run_local(study, args.out, plan, devices, not args.no_progress, console)
+    failed = [i for i, status in result.items() if status == sweep.FAILED]
+    if failed:
+        raise StudyError(
+            f"pieces {', '.join(map(str, failed))} failed (see {args.out / 'logs'}); the others "
+            "are kept: run the same command again to retry them"
+        )
+    console.print(
+        f"{len(plan.pieces)} of {len(plan.pieces)} pieces finished in {args.out / 'runs'}; next: "
+        f"advisor-jax report {args.out} --out REPORT"
+    )

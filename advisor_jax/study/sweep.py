@@ -1,0 +1,294 @@
+"""Running a planned study: every piece into ``DIR/runs/<piece>``, resumable, on all GPUs.
+
+    DIR/plan.json          the plan (made by the first call; later calls keep its pieces)
+    DIR/runs/<piece>/      a run directory per piece (``advisor-jax train``'s files)
+    DIR/logs/<piece>.log   the output of the worker that trained it
+
+``run_local`` starts one worker process per free device (``advisor-jax sweep STUDY --out DIR
+--piece I``, pinned with ``CUDA_VISIBLE_DEVICES``; on a CPU-only machine one at a time) and
+shows one progress display for the whole study, read from each piece's ``train_log.jsonl``.
+``run_piece`` is what a worker (or a Slurm array task) does: nothing for a finished piece,
+``--resume`` for one started before (a checkpoint, or afresh if it was killed before its
+first), a fresh run otherwise. Pieces never talk to each other; DIR collects them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
+from advisor_jax.study.plan import Device, Piece, Plan
+from advisor_jax.study.spec import Study, StudyError
+
+FAILED = "failed"
+
+
+def run_dir(out: Path, piece: Piece) -> Path:
+    return out / "runs" / piece.name
+
+
+def run_status(path: Path) -> str | None:
+    """``status`` of the run in ``path`` ("finished", "interrupted", "running": killed or
+    training now), None where none was started."""
+    try:
+        return json.loads((path / "run.json").read_text()).get("status", "running")
+    except FileNotFoundError:
+        return None
+    except (OSError, json.JSONDecodeError):
+        return "running"
+
+
+def piece_command(study: Study, out: Path, index: int | str) -> str:
+    return shlex.join(
+        ["advisor-jax", "sweep", str(study.path), "--out", str(out), "--piece", str(index)]
+    )
+
+
+# -- the plan on disk -----------------------------------------------------------------------
+
+
+def save_plan(out: Path, study: Study, plan: Plan) -> None:
+    record = {
+        "study": str(study.path),
+        "name": study.name,
+        "digest": plan.digest,
+        "device": dataclasses.asdict(plan.device),
+        "devices": plan.devices,
+        "caps": plan.caps,
+        "explained": plan.explained,
+        "pieces": [{**dataclasses.asdict(p), "agents": p.agents} for p in plan.pieces],
+    }
+    atomic_write_json(out / "plan.json", record)
+
+
+def load_plan(out: Path, study: Study) -> Plan | None:
+    """The plan kept in ``out`` (None if there is none); a plan of another study is an
+    error, since its pieces would not be this study's."""
+    path = out / "plan.json"
+    if not path.is_file():
+        return None
+    record = json.loads(path.read_text())
+    if record["digest"] != study.digest:
+        raise StudyError(
+            f"{out} holds a sweep of another study or of another version of {study.path} "
+            f"({path} was made from {record['study']}); choose another --out"
+        )
+    fields = {f.name for f in dataclasses.fields(Piece)}
+    pieces = tuple(
+        Piece(**{k: tuple(v) if isinstance(v, list) else v for k, v in p.items() if k in fields})
+        for p in record["pieces"]
+    )
+    return Plan(
+        record["digest"],
+        Device(**record["device"]),
+        record["devices"],
+        tuple(record["caps"]),
+        pieces,
+        tuple(record["explained"]),
+    )
+
+
+# -- one piece ------------------------------------------------------------------------------
+
+
+def run_piece(study: Study, out: Path, plan: Plan, index: int, progress: bool = True) -> str:
+    """Trains piece ``index`` in this process; returns "finished" (already), "resumed" or
+    "trained"."""
+    if not 0 <= index < len(plan.pieces):
+        raise StudyError(f"--piece {index}: the plan has pieces 0-{len(plan.pieces) - 1}")
+    piece = plan.pieces[index]
+    path = run_dir(out, piece)
+    status = run_status(path)
+    if status == "finished":
+        return "finished"
+    from advisor_jax.training.host_loop import run_training  # imports JAX
+
+    group = study.groups[piece.group]
+    cfg, base_hp, arenas = study.config(group)
+    points = [group.points[k] for k in piece.points]
+    grid = {n: sorted({p[n] for p in points}) for n in group.names}
+    meta = {
+        "preset": study.preset,
+        "command": piece_command(study, out, index),
+        "study": {
+            "name": study.name,
+            "file": str(study.path),
+            "digest": study.digest,
+            "piece": index,
+            "pieces": len(plan.pieces),
+            "written": [group.written[k] for k in piece.points],
+        },
+    }
+    run_training(
+        cfg,
+        base_hp,
+        grid,
+        list(piece.seeds),
+        path,
+        points=points if group.names else None,
+        eval_episodes=study.eval_episodes,
+        eval_arenas=arenas,
+        eval_seed=study.eval_seed,
+        checkpoint_every=study.checkpoint_every,
+        resume=status is not None,
+        progress=progress,
+        meta=meta,
+    )
+    return "trained" if status is None else "resumed"
+
+
+# -- every piece on the local devices -------------------------------------------------------
+
+
+def _episodes_done(path: Path, agents: int) -> float:
+    """Episodes the piece's agents have completed, from its train_log.jsonl's last line."""
+    try:
+        with open(path / "train_log.jsonl", "rb") as f:
+            f.seek(max(0, os.fstat(f.fileno()).st_size - 65536))
+            last = f.read().splitlines()[-1]
+        return json.loads(last)["episodes_mean"] * agents
+    except (OSError, IndexError, ValueError, KeyError):
+        return 0.0
+
+
+@dataclasses.dataclass
+class _Worker:
+    piece: Piece
+    device: Device
+    process: subprocess.Popen
+    log: object
+    task: int
+
+
+def run_local(
+    study: Study,
+    out: Path,
+    plan: Plan,
+    devices: list[Device],
+    progress: bool = True,
+    console: Console | None = None,
+) -> dict[int, str]:
+    """Every unfinished piece, one worker per device at a time, longest first; returns
+    {piece: "finished" | "failed"}. Ctrl-C stops the workers (each checkpoints)."""
+    console = console or Console(stderr=True)
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
+    total = {p.index: p.agents * episodes[p.group] for p in plan.pieces}
+    result = {p.index: "finished" for p in plan.pieces if run_status(run_dir(out, p)) == "finished"}
+    queue = sorted(
+        (p for p in plan.pieces if p.index not in result), key=lambda p: -(p.seconds or p.agents)
+    )
+    free, running = list(devices), []
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("episodes"),
+        TimeElapsedColumn(),
+    )
+    with Progress(*columns, console=console, disable=not progress) as bar:
+        overall = bar.add_task(f"[bold]{study.name}", total=sum(total.values()))
+        try:
+            while queue or running:
+                while queue and free:
+                    piece, device = queue.pop(0), free.pop(0)
+                    running.append(_start(study, out, piece, device, bar, total))
+                time.sleep(1.0)
+                for w in list(running):
+                    done = _episodes_done(run_dir(out, w.piece), w.piece.agents)
+                    bar.update(w.task, completed=done)
+                    if w.process.poll() is None:
+                        continue
+                    w.log.close()
+                    running.remove(w)
+                    free.append(w.device)
+                    bar.remove_task(w.task)
+                    ok = w.process.returncode == 0
+                    result[w.piece.index] = "finished" if ok else FAILED
+                    if not ok:
+                        console.print(
+                            f"[red]piece {w.piece.index} ({w.piece.name}) failed "
+                            f"(exit {w.process.returncode}); see "
+                            f"{out / 'logs' / w.piece.name}.log[/]"
+                        )
+                finished = [i for i, s in result.items() if s == "finished"]
+                live = sum(_episodes_done(run_dir(out, w.piece), w.piece.agents) for w in running)
+                bar.update(overall, completed=sum(total[i] for i in finished) + live)
+        except KeyboardInterrupt:
+            for w in running:  # a worker checkpoints on SIGINT (and on the terminal's Ctrl-C)
+                w.process.send_signal(2)
+            for w in running:
+                w.process.wait()
+            raise
+    return result
+
+
+def _start(study, out, piece, device, bar, total) -> _Worker:
+    here = str(Path(__file__).resolve().parents[2])  # the worker runs this very package
+    paths = [here, *(p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p)]
+    env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.pathsep.join(paths))
+    if device.index is not None:
+        env["CUDA_VISIBLE_DEVICES"] = str(device.index)
+    command = [
+        sys.executable,
+        "-m",
+        "advisor_jax.cli.main",
+        "sweep",
+        str(study.path),
+        "--out",
+        str(out),
+        "--piece",
+        str(piece.index),
+        "--no-progress",
+    ]
+    log = open(out / "logs" / f"{piece.name}.log", "ab")
+    where = "cpu" if device.index is None else f"GPU {device.index}"
+    task = bar.add_task(f"  {piece.name} ({where})", total=total[piece.index])
+    process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
+    return _Worker(piece, device, process, log, task)
+
+
+# -- a cluster ------------------------------------------------------------------------------
+
+
+def slurm_script(study: Study, out: Path, plan: Plan, extra: list[str]) -> str:
+    """A Slurm job array whose task i trains piece i (resubmit it to resume)."""
+    longest = max((p.seconds or 0.0) for p in plan.pieces)
+    hours = max(1.0, 1.5 * longest / 3600)  # room for a slower device than planned
+    h, m = int(hours), int(60 * (hours - int(hours)))
+    lines = [
+        "#!/bin/bash",
+        f"#SBATCH --job-name={study.name}",
+        f"#SBATCH --array=0-{len(plan.pieces) - 1}",
+        "#SBATCH --gres=gpu:1",
+        "#SBATCH --cpus-per-task=4",
+        f"#SBATCH --time={h:02d}:{m:02d}:00",
+        f"#SBATCH --output={out.resolve()}/logs/slurm-%A_%a.log",
+        *(f"#SBATCH --{option.lstrip('-')}" for option in extra),
+        "",
+        f"# {study.name}: {len(plan.pieces)} pieces ({plan.explained[0]}).",
+        "# Task i trains piece i into the same directory; a finished piece is skipped and an",
+        "# interrupted one resumes from its checkpoint, so the same script can be resubmitted.",
+        "set -euo pipefail",
+        f"cd {shlex.quote(str(Path.cwd()))}  # where the study and --out paths start",
+        piece_command(study, out, "$SLURM_ARRAY_TASK_ID").replace(
+            "'$SLURM_ARRAY_TASK_ID'", '"$SLURM_ARRAY_TASK_ID"'
+        ),
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_slurm(path: Path, study: Study, out: Path, plan: Plan, extra: list[str]) -> None:
+    (out / "logs").mkdir(parents=True, exist_ok=True)  # Slurm does not make --output's folder
+    atomic_write_text(path, slurm_script(study, out, plan, extra))
+    os.chmod(path, 0o755)

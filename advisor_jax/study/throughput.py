@@ -1,0 +1,150 @@
+"""How fast a population trains, for ``advisor-jax sweep --dry-run``'s time estimate.
+
+The estimate is read from a table derived from measurements kept in ``results/``:
+
+* agent env-steps/s of the full training step, per device kind, learner precision, network
+  size (``paper`` and ``stable`` share one) and population size: the rows of
+  ``experiments/bench_train.py``'s reports (``results/bench_train*.json``,
+  ``results/bench_train_largest/*.json``), ATD3+AfDP, the newest date's rows (older ones
+  only for population sizes it lacks, where it has a single row);
+* each agent type's speed relative to ATD3+AfDP and its mean training-episode length, per
+  training arena, from kept runs that trained every type alike on one device
+  (``results/table1_stable/run_data``, ``results/table2/run_data``): the DDPG family
+  updates its actor at every step, the baselines run extra phases.
+
+    python -m advisor_jax.study.throughput       # writes results/sweep_throughput.json
+
+A device, precision or size without a row has no estimate, and the plan says which
+benchmark would give one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from advisor_jax.fileio import atomic_write_json
+
+RESULTS = Path(__file__).resolve().parents[2] / "results"
+TABLE = RESULTS / "sweep_throughput.json"
+REFERENCE_TYPE = "ATD3+AfDP"
+SIZE_OF_PRESET = {"paper": "paper", "stable": "paper", "physical": "physical", "quick": "quick"}
+TYPE_RUNS = (("training", "table1_stable"), ("physical", "table2"))  # (arena, results folder)
+COMPILE_S = 60.0  # compile, evaluation and files of one piece (bench_train's warm-up: 15-48 s)
+
+
+def _bench_rows(paths: list[Path]) -> list[dict]:
+    rows = []
+    for path in paths:
+        report = json.loads(path.read_text())
+        size = SIZE_OF_PRESET.get(report.get("preset", "paper"))
+        if size is None or report.get("agent", REFERENCE_TYPE) != REFERENCE_TYPE:
+            continue
+        for row in report.get("rows", []):
+            if row.get("devices", 1) != 1 or "agent_steps_per_s" not in row:
+                continue
+            rows.append(
+                {
+                    "device": report["device"],
+                    "precision": row.get("precision", "fp32"),
+                    "size": size,
+                    "agents": row["agents"],
+                    "date": report["date"],
+                    "agent_steps_per_s": row["agent_steps_per_s"],
+                    "source": str(path.relative_to(RESULTS.parent)),
+                }
+            )
+    by_key: dict[tuple, list[dict]] = {}
+    for row in rows:
+        by_key.setdefault((row["device"], row["precision"], row["size"]), []).append(row)
+    kept = []
+    for found in by_key.values():  # the newest date's program; older rows only for other sizes
+        newest = max(r["date"] for r in found)
+        chosen = {r["agents"]: r for r in found if r["date"] == newest}
+        if len(chosen) < 2:
+            for r in sorted(found, key=lambda r: r["date"]):
+                chosen.setdefault(r["agents"], r)
+        kept += chosen.values()
+    return sorted(kept, key=lambda r: (r["device"], r["precision"], r["agents"]))
+
+
+def _type_rows(run_root: Path) -> dict:
+    """Per agent type of the kept runs under ``run_root``: agent env-steps/s relative to
+    ATD3+AfDP's and mean steps per training episode."""
+    from advisor_jax.analysis.runs import load_runs
+
+    runs = load_runs([run_root]).runs
+    rates = {
+        r.agent: sum(r.summary["env_steps_per_agent"]) / r.summary["train_seconds"] for r in runs
+    }
+    out = {}
+    for r in runs:
+        length = np.asarray(r.metrics()["length"], np.float64)
+        out[r.agent] = {
+            "relative_speed": rates[r.agent] / rates[REFERENCE_TYPE],
+            "steps_per_episode": float(length[length > 0].mean()),
+            "source": str(r.path.relative_to(RESULTS.parent)),
+        }
+    return out
+
+
+def derive(results: Path = RESULTS) -> dict:
+    """The table written to ``sweep_throughput.json``."""
+    paths = sorted(results.glob("bench_train*.json")) + sorted(
+        (results / "bench_train_largest").glob("*.json")
+    )
+    return {
+        "note": "derived by `python -m advisor_jax.study.throughput` from the files named in "
+        "each row; agent env-steps/s of ATD3+AfDP, one device",
+        "rows": _bench_rows(paths),
+        "agent_types": {
+            arena: _type_rows(results / folder / "run_data") for arena, folder in TYPE_RUNS
+        },
+    }
+
+
+def load_table(path: Path = TABLE) -> dict | None:
+    """The derived table, or None where the repository's results/ is not at hand."""
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def agent_steps_per_s(
+    table: dict, device: str, precision: str, preset: str, agents: int
+) -> float | None:
+    """Interpolated (in log agents, clamped at the ends) env-steps/s of ATD3+AfDP for a
+    population of ``agents`` on one ``device``; None where nothing was measured."""
+    size = SIZE_OF_PRESET.get(preset)
+    rows = [
+        r
+        for r in table["rows"]
+        if r["device"] == device and r["precision"] == precision and r["size"] == size
+    ]
+    if not rows:
+        return None
+    xs = np.log([r["agents"] for r in rows])
+    ys = np.array([r["agent_steps_per_s"] for r in rows])
+    return float(np.interp(math.log(max(agents, 1)), xs, ys))
+
+
+def agent_type(table: dict, agent: str, arena: str) -> dict:
+    """``relative_speed`` and ``steps_per_episode`` of ``agent`` trained in ``arena`` (the
+    training arena's for other simulated arenas; ATD3+AfDP's where the kept runs lack that
+    type)."""
+    by_arena = table.get("agent_types", {})
+    types = by_arena.get(arena) or by_arena.get("training", {})
+    return (
+        types.get(agent)
+        or types.get(REFERENCE_TYPE)
+        or {
+            "relative_speed": 1.0,
+            "steps_per_episode": 100.0,
+        }
+    )
+
+
+if __name__ == "__main__":
+    atomic_write_json(TABLE, derive())
+    print(f"wrote {TABLE}")

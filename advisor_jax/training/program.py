@@ -1,0 +1,151 @@
+"""How a population's training program is built and compiled: the one home of those choices.
+
+``population_functions(cfg, placement)`` returns ``(trainer, jit(vmap(init)),
+jit(vmap(chunk)))``, the program ``host_loop.run_training`` runs. It decides, from the
+config and the devices, what the pure functions of ``agent/`` and ``training/train.py``
+leave open:
+
+* which trainer: the paper's agents' (``train.make_train``) or a baseline's, whose prior
+  phases wrap the same core (``training/prior/``);
+* the chunk's programs: a population of at most ``LATENCY_BOUND_AGENTS`` agents per GPU also
+  compiles the steady program (``train.make_train``'s ``steady``; ``latency_bound``);
+* the twin critics' input layout (``twin_inputs_per_critic``, ``networks.apply_critics``);
+* the XLA options of the compiled chunk (``compiler_options``), which depend on the
+  learner's precision (``AgentConfig.precision``) and on the latency-bound program.
+
+CPUs get XLA's defaults and the shared twin layout, so that CPU results stay bit for bit
+what they were. The measurements behind each choice are in ``results/`` (linked below).
+"""
+
+from __future__ import annotations
+
+import jax
+
+from advisor_jax.agent.config import TrainConfig
+from advisor_jax.training.devices import AXIS, Placement
+from advisor_jax.training.prior.trainer import make_prior_program
+from advisor_jax.training.train import make_train
+
+LATENCY_BOUND_AGENTS = 32
+"""Populations of at most this many agents per device run, on GPUs, the latency-bound
+program: the chunk's steady program compiled with overlapping kernels and whole-loop graphs
+(``compiler_options``). Its kernels are too small to fill a GPU one at a time; larger
+populations fill it and keep the general program, which needs less memory
+(``results/bench_train_steady/``)."""
+
+CUBLAS_GEMMS = {"xla_gpu_enable_triton_gemm": False}
+"""XLA debug options that leave every GEMM to cuBLAS (no Triton GEMM fusions)."""
+
+OVERLAPPING_KERNELS = {"xla_gpu_command_buffer_scheduling_mode": "CONCURRENT"}
+"""CUDA graphs built by data dependence: independent kernels may run at the same time."""
+
+COMMAND_BUFFER_DEFAULTS = (
+    "FUSION", "CUBLAS", "CUBLASLT", "CUSTOM_CALL", "CUDNN", "DYNAMIC_SLICE_FUSION", "CONDITIONAL"
+)  # fmt: skip
+"""What XLA records into CUDA graphs by default (``xla_gpu_enable_command_buffer``, jax
+0.11.2's XLA); an option replaces the list, so ``WHOLE_LOOPS`` repeats it."""
+
+WHOLE_LOOPS = {"xla_gpu_enable_command_buffer": ",".join((*COMMAND_BUFFER_DEFAULTS, "WHILE"))}
+"""The defaults and while loops: a scan without conditionals inside runs as one graph."""
+
+
+def compiler_options(
+    precision: str, backend: str | None = None, overlap: bool = False, steady: bool = False
+) -> dict[str, bool | str] | None:
+    """``jax.jit``'s ``compiler_options`` for a program holding a ``precision`` learner
+    (``AgentConfig.precision``) on ``backend`` (JAX's default when None); None: XLA's
+    defaults (every CPU program). The options belong to one program, never to the process:
+    a user's ``XLA_FLAGS`` and other jitted functions are left alone.
+
+    On GPUs:
+
+    * ``overlap`` (a latency-bound program, ``latency_bound``): ``OVERLAPPING_KERNELS``. XLA
+      runs a program's kernels as CUDA graphs, by default as one chain; built by data
+      dependence, the independent small kernels of a 1-agent step (target and online
+      critic passes, the advisor and the env beside the update) run side by side. XLA then
+      no longer reuses a buffer between kernels that may overlap: more memory.
+    * ``steady`` too (the program's loops hold no ``lax.cond``: the chunk's steady program,
+      the learner benchmark's block loop): ``WHOLE_LOOPS``, each scan one graph launched
+      once instead of one launch per step (``results/bench_train_steady/``).
+    * bf16: ``CUBLAS_GEMMS``. Left free, XLA's autotuner hands the bf16 matmuls to Triton
+      fusions that ran the critic's large GEMMs far below cuBLAS
+      (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``); fp32 learners
+      keep XLA's default, which already gives cuBLAS all their GEMMs
+      (``results/bench_learner_relu_vjp.md``).
+    """
+    backend = jax.default_backend() if backend is None else backend
+    if backend != "gpu":
+        return None
+    options: dict[str, bool | str] = {}
+    if overlap:
+        options.update(OVERLAPPING_KERNELS)
+        if steady:
+            options.update(WHOLE_LOOPS)
+    if precision == "bf16":
+        options.update(CUBLAS_GEMMS)
+    return options or None
+
+
+def twin_inputs_per_critic(backend: str | None = None) -> bool:
+    """The twin critics' input layout (``networks.apply_critics``): per critic on a GPU,
+    shared otherwise (``backend``: JAX's default when None; other accelerators are not
+    measured), whatever the learner's precision. On GPUs each layer is then one GEMM per
+    critic with no transposing pass (``results/bench_learner_twin_inputs/``,
+    ``results/bench_learner_cublas/``). On CPUs the per-critic GEMMs sum in another order:
+    the gradients change in their last bits and with them fixed-seed trajectories, so CPU
+    runs keep the shared layout and their results."""
+    backend = jax.default_backend() if backend is None else backend
+    return backend == "gpu"
+
+
+def latency_bound(placement: Placement | None, backend: str | None = None) -> bool:
+    """Whether ``placement``'s population gets the latency-bound program on ``backend``
+    (JAX's default when None): at most ``LATENCY_BOUND_AGENTS`` agents per GPU. An unknown
+    population (None) does not."""
+    backend = jax.default_backend() if backend is None else backend
+    if backend != "gpu" or placement is None:
+        return False
+    return placement.n_padded // placement.n_devices <= LATENCY_BOUND_AGENTS
+
+
+def population_functions(
+    cfg: TrainConfig, placement: Placement | None = None, steady: bool | None = None
+):
+    """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
+
+    ``steady``: whether this is the latency-bound program (see ``LATENCY_BOUND_AGENTS``);
+    None: where it pays, decided from ``placement`` (``latency_bound``).
+
+    With a multi-device ``placement`` the agent axis of keys, state, hyperparameters and
+    metrics is sharded over its mesh and the step index replicated (``devices``); inputs
+    must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
+    functions (jit compiles on their first call); callers that train several populations
+    of one config keep and reuse them."""
+    steady = latency_bound(placement) if steady is None else steady
+    per_critic = twin_inputs_per_critic()
+    # The agent axis carries the mesh axis's name: a collective over it inside the step
+    # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
+    # written; tests/training/test_collectives.py injects one to show that its check of the
+    # compiled chunk (no collective inside the scan) catches it.
+    if cfg.agent.baseline is None:
+        trainer = make_train(cfg, steady, per_critic)
+        chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
+    else:  # LfD, MCP+MF: the gate from every agent but the padding ones, unbatched
+        baseline = make_prior_program(cfg, per_critic)
+        n_real = None if placement is None else placement.n_agents
+        trainer, chunk = baseline.trainer, baseline.population_chunk(n_real, AXIS)
+    init = jax.vmap(trainer.init)
+    # A baseline (no steady program) still overlaps its kernels when latency-bound.
+    options = compiler_options(cfg.agent.precision, overlap=steady, steady=trainer.steady)
+    if placement is None or placement.mesh is None:
+        return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0, compiler_options=options)
+    agents, replicated = placement.agents(), placement.replicated()
+    init_fn = jax.jit(init, in_shardings=agents, out_shardings=agents)
+    chunk_fn = jax.jit(
+        chunk,
+        in_shardings=(agents, agents, replicated),
+        out_shardings=agents,
+        donate_argnums=0,
+        compiler_options=options,
+    )
+    return trainer, init_fn, chunk_fn

@@ -1,0 +1,114 @@
+"""``advisor-jax report`` on hand-made runs: which items appear, their numbers, the refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from advisor_jax.analysis.items.sweeps import reaches_zero
+from advisor_jax.analysis.report import make_report
+from advisor_jax.analysis.runs import load_runs, pool
+from advisor_jax.cli.main import main
+from tests.analysis.fake_runs import write_run
+
+T_975_3 = 3.182446305284263  # Student-t 97.5 % quantile, 3 degrees of freedom
+
+
+@pytest.fixture
+def runs(tmp_path):
+    root = tmp_path / "runs"
+    write_run(root, "addpg", "ADDPG", [0, 1, 2, 3], [0.6, 0.7, 0.8, 0.9])
+    write_run(root, "ddpg", "DDPG", [0, 1, 2, 3], [0.5, 0.7, 0.6, 0.8])
+    write_run(root, "ddpg_noclip", "DDPG", [0, 1, 2, 3], [0.4, 0.5, 0.6, 0.5],
+              hp={"clip_q_target": 0.0})  # fmt: skip
+    write_run(root, "afd", "ADDPG+AfD", [0, 1, 2], [0.5, 0.6, 0.7],
+              hp={"advisor_episodes": 0.0})  # fmt: skip
+    write_run(root, "afd250", "ADDPG+AfD", [0, 1, 2], [0.7, 0.8, 0.9])
+    return root
+
+
+def test_table1_rows_and_the_papers_claim_seed_by_seed(runs, tmp_path):
+    out = tmp_path / "report"
+    make_report([runs], out, items=["table1"], command="advisor-jax report runs", say=lambda m: 0)
+    record = json.loads((out / "table1.json").read_text())
+    assert record["item"] == "table1" and (out / "table1.png").is_file()
+    rows = {(p["agent"], json.dumps(p["settings"])): p for p in record["points"]}
+    ddpg = rows[("DDPG", "{}")]
+    assert ddpg["seeds"] == 4 and ddpg["training"]["mean"] == pytest.approx(0.65)
+    sd = math.sqrt(sum((v - 0.65) ** 2 for v in (0.5, 0.7, 0.6, 0.8)) / 3)
+    half = T_975_3 * sd / 2
+    assert ddpg["training"]["ci95"] == pytest.approx([0.65 - half, 0.65 + half])
+    assert ddpg["training"]["iqm"] == pytest.approx(0.65)  # mean of 0.6, 0.7
+    (claim,) = [c for c in record["claims"] if c["better"] == "ADDPG" and c["worse"] == "DDPG"]
+    # ADDPG - DDPG per seed: +10, 0, +20, +10 points; P(ADDPG > DDPG) over the 16 pairs
+    assert claim["training"]["mean"] == pytest.approx(10.0)
+    gt = sum(a > b for a in (0.6, 0.7, 0.8, 0.9) for b in (0.5, 0.7, 0.6, 0.8))
+    eq = sum(a == b for a in (0.6, 0.7, 0.8, 0.9) for b in (0.5, 0.7, 0.6, 0.8))
+    assert claim["training"]["probability_of_improvement"] == pytest.approx((gt + eq / 2) / 16)
+    assert record["provenance"]["training_commands"][0].startswith("advisor-jax train")
+    assert record["provenance"]["evaluation"] == [[0, 50]]
+
+
+def test_settings_compared_seed_by_seed_and_items_without_points_skipped(runs, tmp_path):
+    out, said = tmp_path / "report", []
+    make_report([runs], out, versus_settings=["clip_q_target=1"], say=said.append)
+    pairs = json.loads((out / "versus.json").read_text())["pairs"]
+    (pair,) = pairs
+    assert (pair["agent"], pair["treatment_value"], pair["control_value"]) == ("DDPG", "1", "0")
+    assert pair["difference"]["training"]["mean"] == pytest.approx(15.0)  # +10 +20 0 +30
+    assert (out / "fig6.json").is_file()  # ADDPG+AfD at two values of N_T
+    assert "note: table2: skipped, no points it applies to" in said
+    assert not (out / "table2.json").exists()
+    text = (out / "report.md").read_text()
+    assert "## Fig. 6" in text and "table2: skipped" in text
+    for path in out.glob("*.json"):  # strict JSON: no NaN or Infinity
+        assert "NaN" not in path.read_text() and "Infinity" not in path.read_text()
+
+
+def test_eps_decay_is_read_as_where_epsilon_reaches_zero(tmp_path):
+    for name, start, decay in (("h", 1.0, 0.008), ("n", 0.5, 0.002), ("z", 1.0, 0.0)):
+        write_run(tmp_path, name, "ADDPG+AfD", [0], [0.5],
+                  hp={"eps_start": start, "eps_decay": decay})  # fmt: skip
+    points, _ = pool(load_runs([tmp_path]))
+    rules = {(p.settings["eps_start"], p.settings["eps_decay"]): reaches_zero(p) for p in points}
+    assert rules == {(1.0, 0.008): "N_T/2", (0.5, 0.002): "N_T", (1.0, 0.0): "never"}
+
+
+def test_the_command_refuses_runs_on_other_episodes_in_one_line(tmp_path, capsys):
+    write_run(tmp_path, "a", "DDPG", [0], [0.8], eval_seed=0)
+    write_run(tmp_path, "b", "DDPG", [1], [0.7], eval_seed=8)
+    with pytest.raises(SystemExit) as exit_:
+        main(["report", str(tmp_path), "--out", str(tmp_path / "r")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "different episodes" in err and "Traceback" not in err
+    with pytest.raises(SystemExit):
+        main(["report", str(tmp_path), "--out", str(tmp_path / "r"), "--items", "fig12"])
+    assert "unknown item 'fig12'" in capsys.readouterr().err
+
+
+def test_budget_figures_hold_the_advisor_share_and_eps_its_grid(tmp_path):
+    for n in (100, 200):
+        for share in (0.25, 0.5):
+            write_run(tmp_path, f"afd{n}_{share}", "ADDPG+AfD", [0, 1, 2], [0.5, 0.6, share],
+                      episodes=n, hp={"advisor_episodes": share * n})  # fmt: skip
+        write_run(tmp_path, f"ddpg{n}", "DDPG", [0, 1, 2], [0.4, 0.5, n / 400], episodes=n)
+    for name, start, decay in (("h", 1.0, 0.008), ("n", 1.0, 0.004), ("z", 1.0, 0.0)):
+        write_run(tmp_path, name, "ADDPG+AfD", [0, 1, 2], [0.5, 0.6, 0.7],
+                  hp={"eps_start": start, "eps_decay": decay})  # fmt: skip
+    out = tmp_path / "report"
+    make_report([tmp_path], out, items=["fig7", "fig11", "eps"], say=lambda m: 0)
+    fig7 = json.loads((out / "fig7.json").read_text())
+    budgets = [[p["episodes"] for p in s["points"]] for s in fig7["series"]]
+    assert budgets == [[100, 200], [100, 200]]  # one line per share, N_total along it
+    shares = {s["label"] for s in fig7["series"]}
+    assert len(shares) == 2
+    fig11 = json.loads((out / "fig11.json").read_text())
+    ddpg = [s for s in fig11["series"] if s["label"].startswith("DDPG")]
+    assert [p["training"]["per_seed"][2] for p in ddpg[0]["points"]] == [0.25, 0.5]
+    eps = json.loads((out / "eps.json").read_text())
+    rules = [p["eps_reaches_zero"] for p in eps["series"][0]["points"]]
+    assert sorted(rules) == ["N_T", "N_T/2", "never"]
+    assert all((out / f"{n}.png").is_file() for n in ("fig7", "fig11", "eps"))

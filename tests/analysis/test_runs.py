@@ -1,0 +1,98 @@
+"""The one loader: finished runs pooled into points; runs on other evaluation episodes refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from advisor_jax.analysis.rundata import compact_run
+from advisor_jax.analysis.runs import load_runs, pool
+from tests.analysis.fake_runs import write_run
+
+
+def test_seeds_of_one_setting_pool_across_runs_and_a_repeated_seed_counts_once(tmp_path):
+    write_run(tmp_path, "a", "DDPG", [0, 1], [0.8, 0.6])
+    write_run(tmp_path, "b", "DDPG", [2, 3], [0.7, 0.5])
+    write_run(tmp_path, "c", "DDPG", [3], [0.1])  # seed 3 again: the first one counts
+    write_run(tmp_path, "d", "DDPG", [0], [0.2], hp={"clip_q_target": 0.0})  # another setting
+    points, notes = pool(load_runs([tmp_path]))
+    by_label = {p.text(): p for p in points}
+    assert set(by_label) == {"DDPG", "DDPG, clip_q_target=0"}
+    assert by_label["DDPG"].scores("training") == {0: 0.8, 1: 0.6, 2: 0.7, 3: 0.5}
+    assert by_label["DDPG"].scores("validation")[0] == pytest.approx(0.7)
+    assert any("seed 3" in n and "counted once" in n for n in notes)
+
+
+def test_unfinished_runs_are_left_out_with_a_note(tmp_path):
+    write_run(tmp_path, "a", "DDPG", [0], [0.8])
+    write_run(tmp_path, "b", "DDPG", [1], [0.7], status="interrupted")
+    runset = load_runs([tmp_path])
+    assert [r.path.name for r in runset.runs] == ["a"]
+    assert "status 'interrupted', left out" in runset.notes[0]
+
+
+def test_runs_on_other_evaluation_episodes_are_refused(tmp_path):
+    write_run(tmp_path, "a", "DDPG", [0], [0.8], eval_seed=0)
+    write_run(tmp_path, "b", "DDPG", [1], [0.7], eval_seed=8)
+    with pytest.raises(ValueError, match="different episodes .* no seed is common to all"):
+        load_runs([tmp_path])
+
+
+def test_a_re_evaluation_both_runs_have_is_taken(tmp_path):
+    write_run(tmp_path, "a", "DDPG", [0], [0.8], eval_seed=0, snapshots={200: [0.3]})
+    write_run(tmp_path, "b", "DDPG", [1], [0.7], eval_seed=8, extra_evals={0: [0.4]})
+    runset = load_runs([tmp_path])
+    assert {r.path.name: r.eval_seed for r in runset.runs} == {"a": 0, "b": 0}
+    (point,) = [p for p in pool(runset)[0] if not p.snapshot]
+    assert point.scores("training") == {0: 0.8, 1: 0.4}
+    missing = (
+        r"not evaluated on eval seed 8: run python experiments/reevaluate.py .*a --eval-seed 8"
+    )
+    with pytest.raises(ValueError, match=missing):
+        load_runs([tmp_path], eval_seed=8)
+
+
+def test_episode_counts_and_arenas_must_match_too(tmp_path):
+    write_run(tmp_path, "a", "DDPG", [0], [0.8], eval_episodes=50)
+    write_run(tmp_path, "b", "DDPG", [1], [0.7], eval_episodes=100)
+    with pytest.raises(ValueError, match="evaluated on different episodes"):
+        load_runs([tmp_path])
+    write_run(tmp_path / "p", "c", "DDPG", [2], [0.7], preset_name="physical",
+              arenas=("physical",), eval_episodes=100)  # fmt: skip
+    assert len(load_runs([tmp_path / "p"]).runs) == 1  # another training arena: its own set
+
+
+def test_kept_actors_are_points_at_their_budget(tmp_path):
+    write_run(tmp_path, "a", "ATD3+AfDP", [0, 1], [0.8, 0.9], snapshots={200: [0.5, 0.6]})
+    points, _ = pool(load_runs([tmp_path]))
+    budgets = {p.budget: p for p in points}
+    assert set(budgets) == {200, 500}
+    assert budgets[200].snapshot and not budgets[500].snapshot
+    assert budgets[200].scores("training") == {0: 0.5, 1: 0.6}
+
+
+def test_a_static_setting_is_part_of_the_point(tmp_path):
+    write_run(tmp_path, "a", "ATD3+AfDP", [0], [0.8])
+    write_run(tmp_path, "b", "ATD3+AfDP", [0], [0.7], policy_delay=2, precision="bf16")
+    points, _ = pool(load_runs([tmp_path]))
+    assert sorted(p.text() for p in points) == [
+        "ATD3+AfDP", "ATD3+AfDP, policy_delay=2, precision=bf16"
+    ]  # fmt: skip
+
+
+def test_compact_run_keeps_what_the_loader_reads(tmp_path):
+    run = write_run(tmp_path, "in", "DDPG", [0, 1], [0.8, 0.6], outcome=[[1, 2, 1], [2, 2, 3]])
+    (run / "episodes.csv").write_text("x\n")
+    (run / "command.json").write_text(json.dumps({"command": "c", "machine": "somewhere"}))
+    compact_run(run, tmp_path / "out" / "a")
+    kept = sorted(p.name for p in (tmp_path / "out" / "a").iterdir())
+    assert kept == ["command.json", "metrics.npz", "run.json"]
+    assert json.loads((tmp_path / "out" / "a" / "command.json").read_text()) == {"command": "c"}
+    metrics = np.load(tmp_path / "out" / "a" / "metrics.npz")
+    assert metrics["outcome"].dtype == np.int8 and metrics["length"].dtype == np.int16
+    assert metrics["reward_per_step"].dtype == np.float32
+    np.testing.assert_array_equal(metrics["outcome"], [[1, 2, 1], [2, 2, 3]])
+    (point,) = pool(load_runs([tmp_path / "out"]))[0]
+    np.testing.assert_array_equal(point.episodes("outcome"), [[1, 2, 1], [2, 2, 3]])

@@ -1,0 +1,92 @@
+"""The ``advisor-jax`` console script's ``arena`` and ``evaluate`` commands and its errors
+(cli/main.py): files written, JSON output, one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import json
+
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+from advisor_jax.cli import main as cli
+from advisor_jax.training.population import seed_key
+
+
+def _run(argv, capsys):
+    try:
+        cli.main(argv)
+        code = 0
+    except SystemExit as exit_:
+        code = exit_.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_arena_writes_loadable_xml(tmp_path, capsys):
+    path = tmp_path / "training.xml"
+    code, _, _ = _run(["arena", "training", "--xml", str(path)], capsys)
+    assert code == 0
+    model = mujoco.MjModel.from_xml_path(str(path))
+    assert model.nsensor == 16
+
+
+def test_cli_procedural_seed_writes_that_seeds_layout(tmp_path, capsys):
+    """The layout of ``env.layout_boxes(seed_key(3))``, which is the first episode's of
+    ``reset`` with that key (tests/envs/test_env_config.py)."""
+    path = tmp_path / "p.xml"
+    assert _run(["arena", "procedural", "--seed", "3", "--xml", str(path)], capsys)[0] == 0
+    model = mujoco.MjModel.from_xml_path(str(path))
+    first = envs.make_env("procedural").layout_boxes(seed_key(3))
+    for i, (cx, cy, hx, hy, _) in enumerate(np.asarray(first)):
+        geom = model.geom(f"box{i}")
+        np.testing.assert_allclose(geom.pos[:2], (cx, cy), atol=1e-5)
+        np.testing.assert_allclose(geom.size[:2], (hx, hy), atol=1e-5)
+
+
+def test_cli_creates_missing_directories(tmp_path, capsys):
+    target = tmp_path / "new" / "dir" / "arena.xml"
+    assert _run(["arena", "training", "--xml", str(target)], capsys)[0] == 0
+    assert mujoco.MjModel.from_xml_path(str(target)).nsensor == 16
+    assert [p.name for p in target.parent.iterdir()] == ["arena.xml"]  # no temporary left
+
+
+def test_cli_unwritable_path_is_a_one_line_error(tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a directory")
+    target = blocker / "arena.xml"
+    code, out, err = _run(["arena", "training", "--xml", str(target)], capsys)
+    assert code == 2 and out == ""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines[-1] == f"error: cannot write {target}: {blocker} is not a directory"
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["arena", "nowhere", "--xml", "x.xml"], "unknown arena 'nowhere'"),
+        (["evaluate", "--policy", "oracle"], "unknown policy 'oracle'"),
+        (["evaluate", "--episodes", "0"], "--episodes must be a positive integer"),
+    ],
+)
+def test_cli_bad_values_exit_2_with_a_message(argv, needle, capsys):
+    code, _, err = _run(argv, capsys)
+    assert code == 2 and needle in err and "Traceback" not in err
+    if "arena" in needle:
+        assert "training, validation, physical, procedural" in err
+
+
+def test_cli_evaluate_json(capsys):
+    code, out, _ = _run(["evaluate", "--arena", "training", "--episodes", "8", "--json"], capsys)
+    assert code == 0
+    result = json.loads(out)
+    assert result["episodes"] == 8 and result["policy"] == "advisor"
+    total = result["success_rate"] + result["collision_rate"] + result["timeout_rate"]
+    assert total == pytest.approx(1.0)
+
+
+def test_cli_help_lists_subcommands(capsys):
+    code, out, _ = _run(["--help"], capsys)
+    assert code == 0 and "arena" in out and "evaluate" in out

@@ -1,0 +1,124 @@
+"""Planning: bytes per agent, agents per device, pieces, balance over devices, time."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from advisor_jax.agent.config import preset
+from advisor_jax.study import plan as planning
+from advisor_jax.study.spec import StudyError, load_study
+
+GIB = 2**30
+
+
+def test_bytes_per_agent_at_the_papers_sizes_by_hand():
+    cfg, _ = preset("paper", "ATD3+AfDP")
+    m = planning.agent_memory(cfg)
+    assert m["replay"] == 100_000 * 46 * 4  # s, s' (20 each), a, a_adv (2 each), r, terminal
+    assert m["parameters"] == 193_502 + 2 * 823_701  # the paper's counts (§5.3)
+    assert m["networks"] == 5 * m["parameters"] * 4
+    assert m["activations"] == 1000 * (600 + 300 + 2 + 2 * (1000 + 500 + 600 + 1)) * 4
+    assert m["total"] / 1e6 == pytest.approx(75.6, abs=0.1)
+    ddpg = planning.agent_memory(preset("paper", "DDPG")[0])
+    assert ddpg["parameters"] == 193_502 + 823_701  # one critic
+
+
+def test_agents_per_device_leave_the_process_overhead():
+    cfg, _ = preset("paper", "ATD3+AfDP")
+    device = planning.Device("gpu", 80 * GIB, 0)  # 75 % usable: 60 GiB
+    per_agent = planning.agent_memory(cfg)["total"]
+    assert planning.agents_per_device(cfg, device) == (60 * GIB - GIB) // per_agent
+
+
+@pytest.mark.parametrize(
+    ("points", "seeds", "count", "expected"),
+    [
+        (1, 16, 1, [(1, 16)]),
+        (11, 16, 3, [(4, 16), (3, 16), (4, 16)]),
+        (2, 16, 4, [(1, 8), (1, 8), (1, 8), (1, 8)]),
+        (1, 16, 3, [(1, 5), (1, 6), (1, 5)]),
+    ],
+)
+def test_split_group_covers_every_agent_once(points, seeds, count, expected):
+    pieces = planning.split_group(points, tuple(range(seeds)), count)
+    assert [(max(1, len(p)), len(s)) for p, s in pieces] == expected
+    covered = sorted((p, s) for ps, ss in pieces for p in (ps or (None,)) for s in ss)
+    assert len(covered) == len(set(covered)) == max(1, points) * seeds
+
+
+def _study(tmp_path, grid="[0, 10, 20, 30]", seeds=16, extra=""):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        textwrap.dedent(f"""
+        [study]
+        preset = "paper"
+        agents = ["ADDPG+AfD"]
+        seeds = {seeds}
+        [static]
+        episodes = 40
+        {extra}
+        [grid]
+        advisor_episodes = {grid}
+    """)
+    )
+    return load_study(path)
+
+
+def test_a_piece_holds_what_fits_one_device(tmp_path):
+    s = _study(tmp_path)  # 4 points x 16 seeds = 64 agents of 75.6 MB
+    small = planning.Device("gpu", 4 * GIB, 0)  # 3 GiB usable, 2 GiB after the overhead
+    plan = planning.plan_study(s, small)
+    assert plan.caps == (2 * GIB // planning.agent_memory(s.config(s.groups[0])[0])["total"],)
+    assert all(p.agents <= plan.caps[0] for p in plan.pieces)
+    assert sum(p.agents for p in plan.pieces) == 64
+    # one critic: 18.4 MB replay + 1,017,203 parameters x 20 B + 1000 x 3003 x 4 B = 50.8 MB
+    assert "50.8 MB per agent" in " ".join(plan.explained)
+    assert "at most 42 agents per piece" in " ".join(plan.explained)  # 2 GiB / 50.8 MB
+
+
+def test_a_study_whose_agent_does_not_fit_is_refused(tmp_path):
+    s = _study(tmp_path)
+    with pytest.raises(
+        StudyError,
+        match=r"one agent of ADDPG\+AfD needs 1\.0 GiB with the process, more than the 0\.8",
+    ):
+        planning.plan_study(s, planning.Device("gpu", GIB, 0))
+
+
+def test_pieces_spread_over_devices_down_to_the_minimum(tmp_path):
+    s = _study(tmp_path)
+    big = planning.Device("gpu", 80 * GIB, 0)
+    assert len(planning.plan_study(s, big, devices=1).pieces) == 1
+    four = planning.plan_study(s, big, devices=4)
+    assert [p.agents for p in four.pieces] == [16, 16, 16, 16]
+    many = planning.plan_study(s, big, devices=16)  # not below MIN_AGENTS per piece
+    assert min(p.agents for p in many.pieces) >= planning.MIN_AGENTS
+    capped = planning.plan_study(s, big, devices=1, max_agents=20)
+    assert max(p.agents for p in capped.pieces) <= 20
+
+
+ROW = {"device": "G", "precision": "fp32", "size": "paper"}
+TABLE = {
+    "rows": [{**ROW, "agents": 1, "agent_steps_per_s": 100.0},
+             {**ROW, "agents": 16, "agent_steps_per_s": 1600.0}],
+    "agent_types": {"training": {"ADDPG+AfD": {"relative_speed": 0.5, "steps_per_episode": 50.0}}},
+}  # fmt: skip
+
+
+def test_time_from_the_measured_rate_and_the_type(tmp_path):
+    from advisor_jax.study import throughput
+
+    assert throughput.agent_steps_per_s(TABLE, "G", "fp32", "stable", 4) == pytest.approx(850.0)
+    assert throughput.agent_steps_per_s(TABLE, "G", "fp32", "paper", 64) == 1600.0  # clamped
+    assert throughput.agent_steps_per_s(TABLE, "G", "bf16", "paper", 4) is None
+    s = _study(tmp_path, grid="[0]")
+    plan = planning.plan_study(s, planning.Device("G", 80 * GIB, 0), table=TABLE)
+    (piece,) = plan.pieces
+    steps = 16 * 40 * 50.0  # agents x episodes x steps per episode
+    assert piece.seconds == pytest.approx(steps / (1600.0 * 0.5) + throughput.COMPILE_S)
+    assert plan.makespan() == piece.seconds
+    unknown = planning.plan_study(s, planning.Device("H", 80 * GIB, 0), table=TABLE)
+    assert unknown.makespan() is None
+    assert "nothing measured for H, fp32, --preset paper" in " ".join(unknown.explained)

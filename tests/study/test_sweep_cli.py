@@ -1,0 +1,89 @@
+"""``advisor-jax sweep`` without training: --dry-run, --slurm, the kept plan, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import pytest
+
+from advisor_jax.cli.main import main
+from advisor_jax.study import sweep
+from advisor_jax.study.spec import load_study
+
+STUDY = """
+[study]
+name = "tiny"
+preset = "quick"
+agents = ["DDPG", "ADDPG+AfD"]
+seeds = 2
+[static]
+episodes = 4
+[agent."ADDPG+AfD".grid]
+advisor_episodes = [0, 2]
+"""
+
+
+@pytest.fixture
+def study_file(tmp_path):
+    path = tmp_path / "tiny.toml"
+    path.write_text(textwrap.dedent(STUDY))
+    return path
+
+
+def test_dry_run_prints_the_plan_and_writes_nothing(study_file, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    main(["sweep", str(study_file), "--out", str(out), "--dry-run"])
+    err = capsys.readouterr().err
+    assert "tiny: 2 pieces, 6 agents" in err
+    assert "memory: DDPG (fp32, buffer 20,000, batch 128)" in err
+    assert "advisor_episodes=0 | advisor_episodes=2" in err
+    assert "estimated time" in err
+    assert not out.exists()
+
+
+def test_slurm_writes_a_job_array_of_the_pieces_and_keeps_the_plan(study_file, tmp_path, capsys):
+    out, script = tmp_path / "sweep", tmp_path / "job.sh"
+    main(["sweep", str(study_file), "--out", str(out), "--slurm", str(script),
+          "--device-memory", "80", "--sbatch", "partition=gpu"])  # fmt: skip
+    text = script.read_text()
+    assert "#SBATCH --array=0-1" in text and "#SBATCH --gres=gpu:1" in text
+    assert "#SBATCH --partition=gpu" in text
+    assert f'advisor-jax sweep {study_file} --out {out} --piece "$SLURM_ARRAY_TASK_ID"' in text
+    assert "\ncd " in text and (out / "logs").is_dir()  # Slurm needs --output's folder
+    plan = json.loads((out / "plan.json").read_text())
+    assert [p["agents"] for p in plan["pieces"]] == [2, 4]
+    assert "sbatch" in capsys.readouterr().err
+    # a later call (a task, or a resumed sweep) keeps this plan, whatever the device
+    kept = sweep.load_plan(out, load_study(study_file))
+    assert [p.name for p in kept.pieces] == [p["name"] for p in plan["pieces"]]
+
+
+def test_a_changed_study_is_refused_for_the_same_out(study_file, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    main(["sweep", str(study_file), "--out", str(out), "--slurm", str(tmp_path / "j.sh"),
+          "--device-memory", "80"])  # fmt: skip
+    study_file.write_text(study_file.read_text().replace("seeds = 2", "seeds = 3"))
+    with pytest.raises(SystemExit) as exit_:
+        main(["sweep", str(study_file), "--out", str(out), "--dry-run"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "holds a sweep of another study" in err and "Traceback" not in err
+
+
+def test_bad_input_is_one_line_before_anything_compiles(study_file, tmp_path, capsys):
+    study_file.write_text(study_file.read_text().replace("[0, 2]", "[0, 9]"))
+    with pytest.raises(SystemExit) as exit_:
+        main(["sweep", str(study_file), "--out", str(tmp_path / "o")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "N_T" in err and "jax" not in err.lower()
+    with pytest.raises(SystemExit):
+        main(["sweep", str(study_file), "--out", str(tmp_path / "o"), "--piece", "7"])
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_piece_out_of_range_names_the_plan(study_file, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["sweep", str(study_file), "--out", str(tmp_path / "o"), "--piece", "7"])
+    assert "--piece 7: the plan has pieces 0-1" in capsys.readouterr().err

@@ -1,0 +1,79 @@
+"""The XLA compile options of programs that hold a learner (training/program.py).
+
+On GPUs a latency-bound program (a small population) overlaps independent kernels, and one
+without conditionals in its loops (``steady``) also runs them as whole CUDA graphs; a bf16
+learner compiles its GEMMs to cuBLAS; CPUs keep XLA's defaults. The options must be names
+and values XLA knows (a misspelt one fails every GPU compile), and the training chunk must
+be compiled with the options of its learner's precision and program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from advisor_jax.agent.config import HParams
+from advisor_jax.training import program
+from advisor_jax.training.population import agent_keys, build_population
+from advisor_jax.training.program import (
+    CUBLAS_GEMMS,
+    OVERLAPPING_KERNELS,
+    WHOLE_LOOPS,
+    compiler_options,
+)
+from tests.training.conftest import TINY
+
+
+@pytest.mark.parametrize(
+    ("precision", "backend", "overlap", "steady", "expected"),
+    [("bf16", "gpu", False, False, CUBLAS_GEMMS), ("fp32", "gpu", False, False, None),
+     ("fp32", "gpu", True, False, OVERLAPPING_KERNELS),  # a small baseline population
+     ("fp32", "gpu", True, True, {**OVERLAPPING_KERNELS, **WHOLE_LOOPS}),
+     ("bf16", "gpu", True, True, {**OVERLAPPING_KERNELS, **WHOLE_LOOPS, **CUBLAS_GEMMS}),
+     ("fp32", "gpu", False, True, None),  # whole loops only where kernels overlap
+     ("bf16", "cpu", True, True, None), ("fp32", "cpu", False, False, None),
+     ("bf16", "tpu", True, True, None)],
+)  # fmt: skip
+def test_gpu_programs_get_their_options_and_others_none(
+    precision, backend, overlap, steady, expected
+):
+    assert compiler_options(precision, backend, overlap, steady) == expected
+
+
+def test_whole_loop_graphs_keep_what_xla_records_by_default():
+    # The option replaces XLA's list: losing FUSION or CUBLAS would take kernels out of graphs.
+    recorded = WHOLE_LOOPS["xla_gpu_enable_command_buffer"].split(",")
+    assert {"FUSION", "CUBLAS", "CUBLASLT", "CONDITIONAL", "WHILE"} <= set(recorded)
+
+
+def test_the_gpu_options_are_compile_options_xla_knows():
+    # XLA checks every option's name whatever the backend: an unknown one raises here too.
+    options = compiler_options("bf16", "gpu", overlap=True, steady=True)
+    f = jax.jit(lambda x: x @ x, compiler_options=options)
+    assert float(f(jnp.eye(4))[0, 0]) == 1.0
+    with pytest.raises(Exception, match="not a valid enum value"):
+        jax.jit(lambda x: x, compiler_options={**options, **{k: "BOGUS" for k in WHOLE_LOOPS}})(
+            jnp.eye(4)
+        )
+    with pytest.raises(Exception, match="No such compile option"):
+        jax.jit(lambda x: x @ x, compiler_options={"xla_no_such_option": True})(jnp.eye(4))
+
+
+def test_the_training_chunk_compiles_with_its_learners_options(monkeypatch):
+    asked = []
+
+    def options(precision, backend=None, overlap=False, steady=False):  # XLA rejects the
+        asked.append((precision, overlap, steady))  # name: proof the chunk got it
+        return {"xla_no_such_option_for_this_test": True}
+
+    monkeypatch.setattr(program, "compiler_options", options)
+    cfg = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
+    _, init_fn, chunk_fn = program.population_functions(cfg, steady=True)
+    assert asked == [("bf16", True, True)]
+    hp, _ = build_population(HParams(), {}, seeds=[0])
+    state = init_fn(agent_keys([0]))  # init keeps XLA's defaults
+    with pytest.raises(Exception, match="No such compile option"):
+        chunk_fn.lower(state, hp, jnp.int32(0)).compile()

@@ -1,0 +1,161 @@
+"""The training chunk's steady program (training/train.py, "Steady program").
+
+GPUs run each chunk past warm-up as the same steps without a ``lax.cond`` inside: blocks of
+d steps whose first takes the actor update. It must be chosen exactly when that is valid,
+hold no conditional, only exist where it can, and compute the general program's steps: the
+same counters, and parameters and metrics equal up to float rounding (the two programs fuse
+differently, so bit-equality is not expected).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from advisor_jax.agent.config import parse_agent
+from advisor_jax.training import program
+from advisor_jax.training.devices import Placement, place
+from advisor_jax.training.population import agent_keys
+from advisor_jax.training.program import LATENCY_BOUND_AGENTS, latency_bound, population_functions
+from advisor_jax.training.train import steady_at
+from tests.training.conftest import GOOD, TINY, _population, primitive_names
+
+ROUNDING = 1e-4
+"""Largest ||general - steady|| / ||general|| accepted after one 40-step chunk (fp32): the
+2-core Xeon VM measured ~1e-7; Adam turns rounding into step-size differences where
+gradients are tiny, so the bound leaves room for other CPUs' rounding."""
+
+
+def relative(a, b) -> float:
+    """||a - b|| / ||a|| over a tree's leaves (L2), NaN entries (skipped steps) left out."""
+    num = den = 0.0
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        assert np.array_equal(np.isnan(x), np.isnan(y))
+        keep = ~np.isnan(x)
+        num += float(np.sum((x[keep] - y[keep]) ** 2))
+        den += float(np.sum(x[keep] ** 2))
+    return (num / den) ** 0.5 if den else num
+
+
+@pytest.fixture(scope="module")
+def steady_functions():
+    return population_functions(TINY, steady=True)
+
+
+@pytest.fixture(scope="module")
+def after_first_chunk(tiny_functions):
+    """The shared population's state after its first (warm-up) chunk, as numpy."""
+    _, init_fn, chunk_fn = tiny_functions
+    hp, seeds = _population()
+    state, _ = chunk_fn(init_fn(agent_keys(seeds)), hp, jnp.int32(0))
+    return jax.device_get(state), hp
+
+
+def test_cpus_keep_the_general_program_by_default(tiny_functions, steady_functions):
+    assert not tiny_functions[0].steady  # this suite runs on CPUs
+    assert steady_functions[0].steady
+
+
+@pytest.mark.parametrize(
+    ("n_padded", "n_devices", "backend", "expected"),
+    [(1, 1, "gpu", True), (LATENCY_BOUND_AGENTS, 1, "gpu", True),
+     (LATENCY_BOUND_AGENTS + 1, 1, "gpu", False),
+     (2 * LATENCY_BOUND_AGENTS, 2, "gpu", True),  # per device
+     (1, 1, "cpu", False), (None, 1, "gpu", False)],  # unknown population: not latency-bound
+)  # fmt: skip
+def test_only_small_populations_on_gpus_are_latency_bound(n_padded, n_devices, backend, expected):
+    class Mesh:
+        size = n_devices
+
+    placement = (
+        None
+        if n_padded is None
+        else Placement(None if n_devices == 1 else Mesh(), n_padded, n_padded)
+    )
+    assert latency_bound(placement, backend) == expected
+
+
+@pytest.mark.parametrize(
+    ("first_step", "n_envs", "expected"),
+    [(0, 1, False), (30, 1, False),  # the buffer holds < 32 transitions at the first step
+     (31, 1, False),  # past warm-up, but the first step is not a block head (d = 2)
+     (32, 1, True), (40, 1, True), (41, 1, False),
+     (14, 2, False), (16, 2, True)],  # two envs: 32 transitions after 16 steps
+)  # fmt: skip
+def test_steady_exactly_when_past_warmup_and_on_a_block_head(first_step, n_envs, expected):
+    assert steady_at(first_step, n_envs, warmup=32, delay=2) == expected
+    assert steady_at(jnp.int32(first_step), n_envs, 32, 2) == expected  # traced as in chunk
+
+
+def test_the_steady_program_holds_no_conditional(steady_functions):
+    trainer = steady_functions[0]
+    hp, seeds = _population()
+    state = jax.eval_shape(jax.vmap(trainer.init), agent_keys(seeds))
+    chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None))
+    jaxpr = jax.make_jaxpr(chunk)(state, hp, jnp.int32(0)).jaxpr
+    (top,) = [e for e in jaxpr.eqns if e.primitive.name == "cond"]  # one per chunk
+    general, steady = (collections.Counter(primitive_names(b.jaxpr))
+                       for b in top.params["branches"])  # fmt: skip
+    assert general["cond"] >= 2  # the warm-up gate and the actor delay
+    assert steady["cond"] == 0
+    assert steady["scan"] == 1 + TINY.agent.delay  # the block loop and each step's updates
+
+
+@pytest.mark.parametrize(
+    ("overrides", "built"),
+    [(dict(), True),
+     (dict(chunk_steps=41), False),  # not a whole number of delay periods
+     (dict(updates_per_step=2), False),  # the actor's updates would move within the step
+     (dict(updates_per_step=2, agent=parse_agent("DDPG", batch_size=32)), True),  # no delay
+     (dict(agent=parse_agent("LfD", batch_size=32)), False)],  # a baseline's phases
+)  # fmt: skip
+def test_the_steady_program_is_built_only_where_it_exists(overrides, built):
+    cfg = dataclasses.replace(TINY, **overrides)
+    assert population_functions(cfg, steady=True)[0].steady == built
+    assert not population_functions(cfg, steady=False)[0].steady
+
+
+@pytest.mark.parametrize("first_step", [40, 41, 0])  # steady; general past warm-up; warm-up
+def test_a_chunk_computes_the_general_programs_steps(
+    tiny_functions, steady_functions, after_first_chunk, first_step
+):
+    """From the same state, one chunk of each program. At 41 the steady program would put
+    the actor updates on the wrong steps (as many, one step late): the parameters would
+    differ far beyond rounding (checked by breaking ``steady_at``)."""
+    start, hp = after_first_chunk
+    general_state, general_metrics = jax.device_get(
+        tiny_functions[2](start, hp, jnp.int32(first_step))
+    )
+    steady_state, steady_metrics = jax.device_get(
+        steady_functions[2](start, hp, jnp.int32(first_step))
+    )
+    g, s = general_state, steady_state
+    np.testing.assert_array_equal(g.learner.critic_updates, s.learner.critic_updates)
+    np.testing.assert_array_equal(g.learner.actor_updates, s.learner.actor_updates)
+    np.testing.assert_array_equal(g.diverged, s.diverged)
+    assert g.diverged.tolist() == [False] * GOOD + [True]
+    healthy = lambda tree: jax.tree.map(lambda x: np.asarray(x)[:GOOD], tree)  # noqa: E731
+    for part in ("actor", "critic", "target_actor", "target_critic"):
+        assert (
+            relative(healthy(getattr(g.learner, part)), healthy(getattr(s.learner, part)))
+            < ROUNDING
+        ), part
+    for key in ("loss/critic", "q/mean", "loss/actor", "grad_norm/critic"):
+        assert relative(healthy(general_metrics[key]), healthy(steady_metrics[key])) < ROUNDING, key
+    np.testing.assert_array_equal(
+        general_metrics["train/episodes"], steady_metrics["train/episodes"]
+    )
+
+
+def test_population_functions_pick_the_program_from_the_placement(monkeypatch):
+    asked = []
+    monkeypatch.setattr(program, "latency_bound", lambda p: asked.append(p) or True)
+    trainer, _, _ = program.population_functions(TINY, place(3, 1))
+    assert asked == [place(3, 1)] and trainer.steady  # as on a GPU
+    assert not program.population_functions(TINY, place(3, 1), steady=False)[0].steady
