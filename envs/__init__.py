@@ -1,10 +1,13 @@
 """MJX navigation arenas of the paper (§5.1, §5.2) and a registry to build them.
 
     env = envs.make_env("training", omega_max=2.0)   # NavEnv
+    env = envs.make_env("training", motion="mjx")    # the robot's motion simulated by MJX
     state = env.reset(key); state = env.step(state, action)
 
 Arenas: ``training`` and ``validation`` (5 m × 5 m, Fig. 2), ``physical`` (4.9 m × 3 m,
 200-beam lidar reduced to 16 zones) and ``procedural`` (a new random layout per episode).
+Motion models (``motion.py``): ``kinematic`` (a unicycle, the default) and ``mjx`` (a
+Pioneer 3-DX body and wheels stepped by ``mjx.step``), for every arena.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 
 from envs.layouts import ARENA_SPECS
+from envs.motion import MOTION_MODELS, DriveParams, parse_motion
 from envs.navigation import (
     COLLISION,
     GOAL,
@@ -26,8 +30,10 @@ from envs.navigation import (
 ARENAS: tuple[str, ...] = tuple(ARENA_SPECS)
 
 
-def make_env(arena: str, **config_overrides) -> NavEnv:
-    """Builds the named arena; keyword arguments override ``EnvConfig`` fields."""
+def make_env(arena: str, motion: str = "kinematic", **config_overrides) -> NavEnv:
+    """Builds the named arena. ``motion``: the motion setting, ``kinematic``, ``mjx`` or
+    ``mjx:KEY=VALUE,...`` (``motion.parse_motion``); keyword arguments override the other
+    ``EnvConfig`` fields."""
     if arena not in ARENA_SPECS:
         raise ValueError(f"unknown arena {arena!r}; choose one of {', '.join(ARENAS)}")
     fields = {f.name for f in dataclasses.fields(EnvConfig)}
@@ -36,10 +42,16 @@ def make_env(arena: str, **config_overrides) -> NavEnv:
         raise ValueError(
             f"unknown EnvConfig field(s) {', '.join(unknown)}; valid: {', '.join(sorted(fields))}"
         )
-    return NavEnv(arena, EnvConfig(**config_overrides))
+    settings = parse_motion(motion)
+    twice = sorted(set(settings) & set(config_overrides))
+    if twice:
+        raise ValueError(
+            f"{', '.join(twice)} given both in motion={motion!r} and as a keyword; give it once"
+        )
+    return NavEnv(arena, EnvConfig(**settings, **config_overrides))
 
 
 __all__ = [
-    "ARENAS", "COLLISION", "GOAL", "OUTCOME_NAMES", "RUNNING", "TIMEOUT",
-    "EnvConfig", "NavEnv", "NavState", "make_env",
+    "ARENAS", "COLLISION", "GOAL", "MOTION_MODELS", "OUTCOME_NAMES", "RUNNING", "TIMEOUT",
+    "DriveParams", "EnvConfig", "NavEnv", "NavState", "make_env", "parse_motion",
 ]  # fmt: skip

@@ -27,6 +27,7 @@ import contextlib
 import dataclasses
 import io
 import math
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +42,9 @@ with contextlib.redirect_stdout(io.StringIO()):
 from advisor_jax.contract import spec
 from advisor_jax.contract.zones import reduce_to_zones
 from envs.layouts import BOX_HEIGHT, procedural_active
+
+if TYPE_CHECKING:
+    from envs.motion import DriveParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,6 +119,7 @@ def arena_xml(
     robot_radius: float,
     dt: float,
     n_walls: int = 4,
+    drive: DriveParams | None = None,
 ) -> str:
     """Standalone MJCF of one arena.
 
@@ -124,8 +129,10 @@ def arena_xml(
       bounds: free floor (xmin, xmax, ymin, ymax), for the floor plane's extent.
       rig: the range sensors.
       robot_radius: m.
-      dt: control period, written as the model timestep.
+      dt: control period, written as the model timestep (``drive``: dt / substeps).
       n_walls: leading rows drawn in the wall colour.
+      drive: the ``mjx`` motion model's robot (mass, inertia, wheel sites and actuators,
+        ``drive_parts``); None (the ``kinematic`` model) writes today's model unchanged.
 
     Box geoms are named ``box0`` … in row order; sensors ``range0`` … in rig order.
     """
@@ -163,11 +170,12 @@ def arena_xml(
         )
 
     r = robot_radius
+    parts = drive_parts(drive, dt) if drive is not None else DriveParts()
     return "\n".join(
         [
             f'<mujoco model="{name}">',
             '  <compiler angle="radian"/>',
-            f'  <option timestep="{_f(dt)}" gravity="0 0 0">',
+            parts.option or _option(dt),
             '    <flag contact="disable"/>',
             "  </option>",
             "  <asset>",
@@ -185,14 +193,98 @@ def arena_xml(
             '      <joint name="x" type="slide" axis="1 0 0"/>',
             '      <joint name="y" type="slide" axis="0 1 0"/>',
             '      <joint name="yaw" type="hinge" axis="0 0 1"/>',
+            *parts.inertial,
             f'      <geom name="robot" type="sphere" size="{_f(r)}" material="robot" mass="9"/>',
             f'      <site name="front" pos="{_vec(r, 0.0, 0.1)}" size="0.03" rgba="0 0 1 1"/>',
+            *parts.sites,
             *sites,
             "    </body>",
             "  </worldbody>",
+            *parts.actuators,
             "  <sensor>",
             *sensors,
             "  </sensor>",
+            "</mujoco>",
+            "",
+        ]
+    )
+
+
+def _option(timestep: float, integrator: str = "") -> str:
+    extra = f' integrator="{integrator}"' if integrator else ""
+    return f'  <option timestep="{_f(timestep)}" gravity="0 0 0"{extra}>'
+
+
+@dataclasses.dataclass(frozen=True)
+class DriveParts:
+    """MJCF lines of the ``mjx`` motion model's robot (empty: the kinematic robot)."""
+
+    option: str = ""  # <option ...> opening tag: physics step and integrator
+    inertial: tuple[str, ...] = ()  # lines inside the robot body
+    sites: tuple[str, ...] = ()  # the wheels' ground contact points and the centre
+    actuators: tuple[str, ...] = ()  # the <actuator> section
+
+
+def drive_parts(drive: DriveParams, dt: float) -> DriveParts:
+    """The robot's mass, inertia, wheel sites and actuators (``envs/motion.py``).
+
+    Two velocity servos act along the heading at the wheels' ground contact points
+    (0, ±b/2): force k_v (ctrl − rim speed), ctrl clamped to ±rim_speed_max and force
+    to ±wheel_force_max. A third servo at the centre, across the heading, with target 0
+    and gain m / h removes any side slip in one physics step h = dt / substeps. The
+    centre of mass is at the body origin, so the mass matrix is diag(m, m, I).
+    """
+    h = dt / drive.substeps
+    b2, kv = 0.5 * drive.axle_track, drive.servo_gain()
+    rim, force = drive.rim_speed_max, drive.wheel_force_max
+    side_ixx = 0.6 * drive.yaw_inertia  # any value: x and y rotations are not joints
+    wheel = (
+        f'gear="1 0 0 0 0 0" kv="{_f(kv)}" ctrllimited="true" '
+        f'ctrlrange="{_vec(-rim, rim)}" forcelimited="true" forcerange="{_vec(-force, force)}"'
+    )
+    return DriveParts(
+        option=_option(h, "Euler"),
+        inertial=(
+            f'      <inertial pos="0 0 0" mass="{_f(drive.mass)}" '
+            f'diaginertia="{_vec(side_ixx, side_ixx, drive.yaw_inertia)}"/>',
+        ),
+        sites=(
+            f'      <site name="wheel_left" pos="{_vec(0.0, b2, 0.0)}" size="0.02"/>',
+            f'      <site name="wheel_right" pos="{_vec(0.0, -b2, 0.0)}" size="0.02"/>',
+            '      <site name="centre" pos="0 0 0" size="0.02"/>',
+        ),
+        actuators=(
+            "  <actuator>",
+            f'    <velocity name="wheel_left" site="wheel_left" {wheel}/>',
+            f'    <velocity name="wheel_right" site="wheel_right" {wheel}/>',
+            f'    <velocity name="side_grip" site="centre" gear="0 1 0 0 0 0" '
+            f'kv="{_f(drive.mass / h)}"/>',
+            "  </actuator>",
+        ),
+    )
+
+
+def drive_xml(drive: DriveParams, dt: float, robot_radius: float) -> str:
+    """MJCF of the robot alone (no boxes, no sensors, contacts off): what ``mjx.step``
+    advances under the ``mjx`` motion model (``motion.MjxDrive``)."""
+    parts = drive_parts(drive, dt)
+    return "\n".join(
+        [
+            '<mujoco model="drive">',
+            '  <compiler angle="radian"/>',
+            parts.option,
+            '    <flag contact="disable"/>',
+            "  </option>",
+            "  <worldbody>",
+            f'    <body name="robot" pos="0 0 {_f(robot_radius)}">',
+            '      <joint name="x" type="slide" axis="1 0 0"/>',
+            '      <joint name="y" type="slide" axis="0 1 0"/>',
+            '      <joint name="yaw" type="hinge" axis="0 0 1"/>',
+            *parts.inertial,
+            *parts.sites,
+            "    </body>",
+            "  </worldbody>",
+            *parts.actuators,
             "</mujoco>",
             "",
         ]

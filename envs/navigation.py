@@ -3,22 +3,25 @@
 Paper §5.1–5.4, Eq. (8), Table A3; docs/architecture.md, "Environment". Per control step (dt)::
 
     a      ← clip(action) (non-finite → stop, flagged)      V = a0·V_max, ω = a1·ω_max
-    pose   ← unicycle move over dt (heading at mid-step: exact speed, 2nd-order arc)
+    pose   ← move over dt by the motion model (``motion.py``): "kinematic" unicycle, or
+             "mjx": the P3DX's wheels and body stepped by mjx.step (state keeps qvel)
     P      ← MJX rangefinders at the new pose (mjx.kinematics + mjx.sensor_pos), −1 → max_range;
              physical arena: 200-beam lidar → 16 zones (contract.zones.reduce_to_zones)
-    obs    = [P, δ, d, v_x, v_y]                            (layout: advisor_jax/contract/spec.py)
+    obs    = [P, δ, d, v_x, v_y]   v = displacement / dt   (layout: advisor_jax/contract/spec.py)
     goal   = d_t ≤ T_g;  collision = min P ≤ T_c  or  robot circle touches a box (geometry)
     r      = c1 if goal, else −c2 if collision, else k1 (d_{t−1} − d_t) + k2 (p_t − p_{t−1})
     timeout after h_max steps without goal/collision (no special reward; a truncation)
     if done: draw a fresh start, goal (and procedural layout); obs = its first observation
 
-The robot is kinematic: the pose is integrated here and written to ``qpos``; MJX then
-computes the sensors (``mjcf.MjxSensors``), so the readings are MuJoCo's. The state keeps
-only the pose, not ``mjx.Data``, which is rebuilt from a constant template each step.
+The motion model moves the pose (and, under "mjx", the body velocity ``qvel``); the pose
+is then written to ``qpos`` and MJX computes the sensors (``mjcf.MjxSensors``), so the
+readings are MuJoCo's at the pose after the move. The state keeps only the pose (and
+qvel), not ``mjx.Data``, which is rebuilt from a constant template each step.
 Fixed arenas keep one unbatched ``mjx.Model`` (closure constants); ``procedural`` carries
 its boxes in the state and writes them into ``geom_pos/size/quat`` of a per-env model
-(domain randomisation). This is faster than setting ``qvel`` and calling ``mjx.step``
-(``results/bench_env.md``), whose sensors would also describe the pose before the move.
+(domain randomisation). Reading the sensors this way is faster than inside
+``mjx.step`` (``results/bench_env.md``), whose sensors would describe the pose before the
+move; the "mjx" motion model therefore steps a robot-only model with sensors off.
 Because vmap turns the auto-reset branch into a select, every step also samples a spawn
 and reads its sensors; both sensor passes share one vmapped MJX call.
 
@@ -40,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from advisor_jax.contract import spec
-from envs import geometry, layouts, mjcf
+from envs import geometry, layouts, mjcf, motion
 from envs.layouts import ARENA_SPECS
 from envs.state import (
     COLLISION,
@@ -92,6 +95,10 @@ class NavEnv:
             robot_radius=cfg.robot_radius,
         )
         self.mj_model = self.sensors.mj_model  # CPU MuJoCo model (tests, viewers)
+        self.drive = None  # the "mjx" motion model's stepper (motion.MjxDrive)
+        if cfg.motion == "mjx":
+            xml = mjcf.drive_xml(cfg.drive, cfg.dt, cfg.robot_radius)
+            self.drive = motion.MjxDrive(xml, cfg.drive, cfg.dt)
         if not self.procedural:
             try:
                 self.spawn_tables = geometry.make_spawn_tables(
@@ -118,7 +125,13 @@ class NavEnv:
         boxes = self._boxes if boxes is None else np.asarray(boxes)
         cfg = self.config
         return mjcf.arena_xml(
-            self.arena_name, boxes, self.bounds, self.rig, robot_radius=cfg.robot_radius, dt=cfg.dt
+            self.arena_name,
+            boxes,
+            self.bounds,
+            self.rig,
+            robot_radius=cfg.robot_radius,
+            dt=cfg.dt,
+            drive=cfg.drive if cfg.motion == "mjx" else None,
         )
 
     def layout_boxes(self, key: jax.Array | None = None) -> np.ndarray:
@@ -138,6 +151,7 @@ class NavEnv:
             "omega_max": cfg.omega_max,
             "max_range": cfg.max_range,
             "robot_radius": cfg.robot_radius,
+            "motion": cfg.motion_setting,
             "sensor": self.rig.kind,
             "h_max": self.max_episode_steps,
             "T_g": cfg.goal_tolerance,
@@ -250,6 +264,7 @@ class NavEnv:
             steps=zero_i,
             running_return=zero_f,
             speeds=jnp.zeros(SPEED_HISTORY, jnp.float32),
+            qvel=jnp.zeros(0 if self.drive is None else 3, jnp.float32),  # at rest
             invalid_action=jnp.bool_(False),
             spawn_valid=spawn.valid,
             layout=layout,
@@ -263,12 +278,12 @@ class NavEnv:
         v = jnp.clip(action[0], spec.ACTION_LOW[0], spec.ACTION_HIGH[0]) * cfg.v_max
         w = jnp.clip(action[1], spec.ACTION_LOW[1], spec.ACTION_HIGH[1]) * cfg.omega_max
 
-        x, y, theta = state.pose[0], state.pose[1], state.pose[2]
-        mid = theta + 0.5 * w * cfg.dt
-        step_xy = v * cfg.dt * jnp.stack([jnp.cos(mid), jnp.sin(mid)])
-        heading = jnp.mod(theta + w * cfg.dt + jnp.pi, 2.0 * jnp.pi) - jnp.pi
-        pose = jnp.concatenate([jnp.stack([x, y]) + step_xy, heading[None]])
-        velocity = step_xy / cfg.dt
+        if self.drive is None:  # kinematic: the commanded speed is the speed
+            pose, velocity = motion.unicycle_move(state.pose, v, w, cfg.dt)
+            qvel, speed = state.qvel, jnp.abs(v)
+        else:  # mjx: the body's own motion over the step
+            pose, velocity, qvel = self.drive.move(state.pose, state.qvel, v, w)
+            speed = jnp.linalg.norm(velocity)
 
         # The auto-reset branch is computed every step (vmap turns a branch into a select),
         # so the fresh start's sensors are read in the same MJX call as the moved pose's.
@@ -298,7 +313,7 @@ class NavEnv:
         timeout = (steps >= self.max_episode_steps) & ~goal & ~collision
         done = goal | collision | timeout
         outcome = jnp.select([goal, collision, timeout], [GOAL, COLLISION, TIMEOUT], RUNNING)
-        speeds = jnp.concatenate([state.speeds[1:], jnp.abs(v)[None]])
+        speeds = jnp.concatenate([state.speeds[1:], speed[None]])
         recent = jnp.minimum(steps, SPEED_HISTORY)
         collision_speed = jnp.sum(speeds) / recent.astype(jnp.float32)
         episode_return = state.running_return + reward
@@ -320,6 +335,7 @@ class NavEnv:
             steps=keep(0, steps).astype(jnp.int32),
             running_return=keep(0.0, episode_return).astype(jnp.float32),
             speeds=keep(fresh.speeds, speeds),
+            qvel=keep(fresh.qvel, qvel),
             invalid_action=~finite,
             spawn_valid=keep(fresh.spawn_valid, state.spawn_valid),
             layout=keep(fresh.layout, state.layout),

@@ -63,8 +63,10 @@ def return_bounds(cfg: EnvConfig, gamma: jax.Array | float) -> tuple[jax.Array, 
         hi =  c1 + k1 v_max dt / (1 - γ) + k2 R        lo = -(c2 + k1 v_max dt / (1 - γ) + k2 R)
 
     * **Terminal reward**: at most one, c1 (goal) or -c2 (collision), weighted by γ^T ≤ 1.
-    * **Distance shaping** k1 (d_{t-1} - d_t): the robot is kinematic, so each step moves it
-      v dt ≤ v_max dt and the goal distance changes by at most that: |Σ| ≤ k1 v_max dt/(1-γ).
+    * **Distance shaping** k1 (d_{t-1} - d_t): each step moves the robot at most v_max dt
+      (``kinematic``: v ≤ v_max; ``mjx``: the body never outruns the commanded V ≤ v_max,
+      ``motion.py``, tested), so the goal distance changes by at most that:
+      |Σ| ≤ k1 v_max dt/(1-γ).
     * **Proximity shaping** k2 (p_t - p_{t-1}) with p ∈ [0, R] (R = max_range): the discounted
       sum telescopes, Σ_{t<T} γ^t (p_{t+1} - p_t) = -p_0 + Σ_{0<t<T} (γ^{t-1} - γ^t) p_t
       + γ^{T-1} p_T, whose positive weights sum to 1, so it lies in [-R, R]: |Σ| ≤ k2 R.

@@ -2,14 +2,17 @@
 
 Measures ``jax.jit`` of a ``lax.scan`` over ``--steps`` calls of ``jax.vmap(env.step)``
 (MJX sensors, reward, termination and auto-reset included), each env driving a fixed
-random action drawn once per env (so robots collide, time out and reset as in training).
+random action drawn once per env (so robots collide, time out and reset as in training),
+for each motion model of ``--motions`` (``kinematic``: a unicycle; ``mjx``: the P3DX body
+stepped by ``mjx.step``, envs/motion.py): a row per model and size.
 Optionally (``--breakdown``) the same scan over the parts of a step: the MJX sensor pass
-alone, the ``qvel`` + ``mjx.step`` alternative, and ``reset`` alone; (``--ceiling``) the
-device's copy bandwidth and fp32 matmul rate, against which the env's bytes and FLOPs per
-step are compared; (``--check``) the device's MJX readings against CPU MuJoCo.
+alone, the ``qvel`` + ``mjx.step`` alternative, ``reset`` alone and, for ``mjx``, the
+drive alone; (``--ceiling``) the device's copy bandwidth and fp32 matmul rate, against
+which the env's bytes and FLOPs per step are compared; (``--check``) the device's MJX
+readings against CPU MuJoCo.
 
-    python experiments/bench_env.py --envs 64 256 1024 --breakdown --check          # CPU
-    python experiments/bench_env.py --envs 32768 131072 --ceiling --check --append  # GPU
+    python experiments/bench_env.py --motions kinematic mjx --envs 64 256 1024 --breakdown --check
+    python experiments/bench_env.py --motions kinematic mjx --envs 32768 131072 --check --append
 
 Writes ``<out>.md`` (tables) and ``<out>.json`` (all numbers, device, command, date).
 """
@@ -37,6 +40,8 @@ from advisor_jax.fileio import atomic_write_json, atomic_write_text
 class Args:
     arena: str = "training"
     """Arena to step (see ``advisor-jax arena --help``)."""
+    motions: tuple[str, ...] = ("kinematic",)
+    """Motion models to measure, one row each (kinematic, mjx or mjx:KEY=VALUE,...)."""
     envs: tuple[int, ...] = (64, 256, 1024, 4096)
     """Numbers of parallel environments to measure."""
     steps: int = 100
@@ -147,7 +152,8 @@ def bench_step(env, n: int, steps: int, repeats: int) -> dict:
 def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
     """Parts of a step, each in the same scan shape as the step: the sensor pass the env
     uses (pose written to qpos, ``mjx.kinematics`` + ``mjx.sensor_pos``), the alternative
-    of our first design (joint velocities, then a full ``mjx.step``), and ``reset`` alone."""
+    of our first design (joint velocities, then a full ``mjx.step``), ``reset`` alone and,
+    under the ``mjx`` motion model, its drive alone (``substeps`` × ``mjx.step``)."""
     from envs.mjcf import mjx
 
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
@@ -187,13 +193,29 @@ def bench_parts(env, n: int, steps: int, repeats: int) -> dict:
 
         return jax.lax.scan(body, key, None, length=steps)[1]
 
-    out = {}
-    for name, fn, args in (
+    parts = [
         ("sensors (kinematics + sensor_pos)", sensors, (state.pose, state.layout)),
         ("mjx.step with qvel (not used)", mjx_steps, (state.pose,)),
         ("reset", resets, (state.key,)),
-    ):
-        if "mjx.step" in name and env.procedural:
+    ]
+    if env.drive is not None:
+        move = jax.vmap(env.drive.move)
+        v, w = jnp.full(n, 0.8), jnp.linspace(-4.0, 4.0, n)
+
+        @jax.jit
+        def drives(pose, qvel):
+            def body(carry, _):
+                pose, _, qvel = move(*carry, v, w)
+                return (pose, qvel), ()
+
+            return jax.lax.scan(body, (pose, qvel), None, length=steps)[0]
+
+        parts.append(
+            (f"drive ({env.drive.params.substeps} × mjx.step)", drives, (state.pose, state.qvel))
+        )
+    out = {}
+    for name, fn, args in parts:
+        if "not used" in name and env.procedural:
             continue  # needs the per-env model; the fixed-arena comparison suffices
         _, best = measure.first_and_best(functools.partial(fn, *args), repeats)
         out[name] = {"steps_per_s": n * steps / best, "seconds": best}
@@ -221,7 +243,7 @@ def check_parity(env, poses: int = 100) -> float:
 
 
 def main(args: Args) -> dict:
-    env = envs.make_env(args.arena)
+    models = [envs.make_env(args.arena, motion=m) for m in args.motions]
     where = measure.provenance()
     result = {
         **where,
@@ -232,25 +254,28 @@ def main(args: Args) -> dict:
         "steps_per_scan": args.steps,
         "rows": [],
     }
-    for n in args.envs:
-        row = bench_step(env, n, args.steps, args.repeats)
-        print(
-            f"{n:>8} envs  {row['steps_per_s'] / 1e6:9.3f} M steps/s  "
-            f"(compile {row['compile_s']:.1f} s, done/step {row['done_per_step']:.4f})",
-            flush=True,
-        )
-        result["rows"].append(row)
-    if args.check:
-        result["max_abs_diff_vs_cpu_mujoco"] = check_parity(env)
-        print("parity vs CPU MuJoCo:", result["max_abs_diff_vs_cpu_mujoco"], flush=True)
+    for env in models:
+        motion = env.config.motion_setting
+        for n in args.envs:
+            row = {"motion": motion, **bench_step(env, n, args.steps, args.repeats)}
+            print(
+                f"{motion:>10} {n:>8} envs  {row['steps_per_s'] / 1e6:9.3f} M steps/s  "
+                f"(compile {row['compile_s']:.1f} s, done/step {row['done_per_step']:.4f})",
+                flush=True,
+            )
+            result["rows"].append(row)
+        if args.check:
+            result.setdefault("parity", {})[motion] = check_parity(env)
+            print(f"{motion}: parity vs CPU MuJoCo:", result["parity"][motion], flush=True)
+        if args.breakdown:
+            parts = bench_parts(env, max(args.envs), args.steps, args.repeats)
+            result.setdefault("breakdowns", {})[motion] = parts
+            print(f"{motion}: breakdown", parts, flush=True)
     if args.dump_hlo:
-        n = max(args.envs)
+        env, n = models[-1], max(args.envs)
         state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), n))
         hlo = jax.jit(jax.vmap(env.step)).lower(state, jnp.zeros((n, 2))).compile().as_text()
         atomic_write_text(args.out + "_hlo.txt", hlo)
-    if args.breakdown:
-        result["breakdown"] = bench_parts(env, max(args.envs), args.steps, args.repeats)
-        print("breakdown", result["breakdown"], flush=True)
     if args.ceiling:
         result["ceiling"] = {  # 1 GiB; 8192² fp32 at JAX's default precision
             "copy_bytes_per_s": measure.copy_ceiling(2**30, args.repeats),
@@ -280,7 +305,12 @@ def write(result: dict, out: pathlib.Path, append: bool = False) -> None:
     ]
     for run in runs:
         lines += _section(run)
-    writing.write_markdown(out.with_suffix(".md"), lines)
+    # Hand-written readings ("## Reading ..." to the end) survive the regeneration.
+    md = out.with_suffix(".md")
+    old = md.read_text() if append and md.exists() else ""
+    if "\n## Reading" in old:
+        lines += ["", *old[old.index("\n## Reading") + 1 :].rstrip("\n").splitlines()]
+    writing.write_markdown(md, lines)
 
 
 def _section(result: dict) -> list[str]:
@@ -293,24 +323,33 @@ def _section(result: dict) -> list[str]:
         f"- command: `{result['command']}`",
         "",
         *writing.markdown_table(
-            ("envs", "M steps/s", "done/step", "state B/env", "kernel I/O B/step",
+            ("motion", "envs", "M steps/s", "done/step", "state B/env", "kernel I/O B/step",
              "XLA FLOP/step", "XLA B accessed/step"),
-            [(r["envs"], r["steps_per_s"] / 1e6, r["done_per_step"], r["state_bytes_per_env"],
-              r["kernel_io_bytes_per_step"], r["xla_flops_per_step"], r["xla_bytes_per_step"])
-             for r in result["rows"]],
-            formats=("", ".3f", ".4f", ".0f", ".3g", ".3g", ".3g"),
+            [(r.get("motion", "kinematic"), r["envs"], r["steps_per_s"] / 1e6,
+              r["done_per_step"], r["state_bytes_per_env"], r["kernel_io_bytes_per_step"],
+              r["xla_flops_per_step"], r["xla_bytes_per_step"]) for r in result["rows"]],
+            formats=("", "", ".3f", ".4f", ".0f", ".3g", ".3g", ".3g"),
             align="r",
         ),
     ]  # fmt: skip
-    if "breakdown" in result:
-        lines += ["", "Parts of a step at the largest size, same scan shape:", ""]
-        for name, part in result["breakdown"].items():
+    # Runs before the motion models were added hold one breakdown and one parity number.
+    breakdowns = result.get("breakdowns") or (
+        {"kinematic": result["breakdown"]} if "breakdown" in result else {}
+    )
+    for motion, parts in breakdowns.items():
+        lines += ["", f"Parts of a `{motion}` step at the largest size, same scan shape:", ""]
+        for name, part in parts.items():
             lines.append(f"- {name}: {part['steps_per_s'] / 1e6:.3f} M/s")
-    if "max_abs_diff_vs_cpu_mujoco" in result:
+    parity = result.get("parity") or (
+        {"kinematic": result["max_abs_diff_vs_cpu_mujoco"]}
+        if "max_abs_diff_vs_cpu_mujoco" in result
+        else {}
+    )
+    for motion, diff in parity.items():
         lines += [
             "",
-            "MJX readings on this device vs CPU MuJoCo (`mj_forward`, same poses): max |diff| "
-            f"= {result['max_abs_diff_vs_cpu_mujoco']:.2g} m over 100 random poses.",
+            f"`{motion}`: MJX readings on this device vs CPU MuJoCo (`mj_forward`, same "
+            f"poses): max |diff| = {diff:.2g} m over 100 random poses.",
         ]
     if "ceiling" in result:
         c, best = result["ceiling"], max(result["rows"], key=lambda r: r["steps_per_s"])
@@ -321,7 +360,8 @@ def _section(result: dict) -> list[str]:
             "",
             f"Ceilings measured in the same run: device copy {c['copy_bytes_per_s'] / 1e9:.0f} "
             f"GB/s (read + write), fp32 matmul {c['matmul_flops_per_s'] / 1e12:.0f} TFLOP/s "
-            f"(JAX default precision). At {best['envs']} envs ({rate / 1e6:.1f} M steps/s):",
+            f"(JAX default precision). At {best['envs']} envs, `{best.get('motion', 'kinematic')}` "
+            f"({rate / 1e6:.1f} M steps/s):",
             f"- kernel I/O {best['kernel_io_bytes_per_step']:.3g} B/step → {io / 1e9:.0f} GB/s "
             f"= {io / c['copy_bytes_per_s']:.0%} of the copy rate (L2 can push this past 100%);",
             f"- the minimum traffic (state in + out + action, {best['min_bytes_per_step']:.0f} "

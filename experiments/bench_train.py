@@ -7,6 +7,8 @@ cost of data collection and bookkeeping.
 
     python experiments/bench_train.py --preset paper --agents 8 32 64
     python experiments/bench_train.py --preset quick --agents 1 4 --chunk 100   # CPU
+    # the cost of the simulated P3DX (envs/motion.py) against the kinematic robot
+    python experiments/bench_train.py --agents 16 64 --motion mjx --name bench_train_mjx
     # several GPUs: the same populations on 1 and 2 devices, in one process
     python experiments/bench_train.py --agents 64 128 --devices 1 2 --name bench_multigpu
 
@@ -47,7 +49,7 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
     ``precision``: best of ``args.repeats`` chunks after a warm-up."""
     cfg, hp = preset(args.preset, args.agent, precision=precision)
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
-    cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
+    cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000, motion=args.motion)
     placement = place(n, devices)
     _, init_fn, chunk_fn = population_functions(cfg, placement, PROGRAMS[args.program])
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
@@ -149,6 +151,11 @@ def main() -> None:
         "lax.cond per step for warm-up and the TD3 delay, XLA's scheduling) or steady (the "
         "latency-bound program: no conditional in the loop, overlapping kernels)",
     )
+    parser.add_argument(
+        "--motion",
+        default="kinematic",
+        help="motion model of the arena: kinematic, mjx or mjx:KEY=VALUE,...",
+    )
     parser.add_argument("--name", default="bench_train", help="report file name")
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--reference", type=Path, metavar="TREE",
@@ -160,6 +167,8 @@ def main() -> None:
                 "--chunk", str(args.chunk), "--repeats", str(args.repeats),
                 "--devices", *map(str, args.devices), "--precision", *args.precision,
                 "--name", args.name]  # fmt: skip
+        if args.motion != "kinematic":  # older trees have no --motion (and are kinematic)
+            argv += ["--motion", args.motion]
         print(f"reference: {args.reference}")
         reference = measure.run_reference(
             args.reference, "bench_train.py", argv, f"{args.name}.json"
@@ -189,6 +198,7 @@ def main() -> None:
         **where,
         preset=args.preset,
         agent=args.agent,
+        motion=args.motion,
         program=args.program,
         chunk=args.chunk,
         rows=rows,
@@ -198,7 +208,8 @@ def main() -> None:
     lines = [
         "# Training throughput (full step: env + advisor + selector + update)",
         "",
-        f"{args.agent}, preset `{args.preset}`, {args.chunk} env steps per jitted chunk; "
+        f"{args.agent}, preset `{args.preset}`, motion `{args.motion}`, {args.chunk} env steps "
+        "per jitted chunk; "
         f"{device}, {result['date']}.",
         "",
         *writing.markdown_table(

@@ -2,16 +2,20 @@
 
 The paper measures its advisor at 53.6 % success in the training arena and 50.4 % in the
 validation arena (500 episodes each) and 32 % on the physical platform (§6.3). Our arenas
-were tuned (layouts, gaps, obstacle count and the open parameter ω_max; the advisor's
-published constants are untouched) until the advisor lands in 40–65 % in both simulated
-arenas. This script measures it and writes ``results/advisor.md`` and ``.json``:
+were tuned (layouts, gaps, obstacle count and the open parameters ω_max and, for the
+``mjx`` motion model, the wheel torque; the advisor's published constants are untouched)
+until the advisor lands near those numbers (docs/arena_calibration.md). This script
+measures it for one motion model (``--motion``) and writes ``<out>.md`` and ``.json``:
 
 * one row per arena (seed ``--seed``, ``--episodes`` episodes): success, collision and
   timeout rates, mean collision speed;
 * the spread over ``--extra-seeds`` for training and validation;
-* the sensitivity to ω_max (``--omega``), the main open parameter of the calibration.
+* the sensitivity to ω_max (``--omega``), the main open parameter of the calibration, and
+  to other motion settings (``--settings``, e.g. the mjx model's wheel torque).
 
     python experiments/calibrate_advisor.py            # ~10 min on a 2-core CPU
+    python experiments/calibrate_advisor.py --motion mjx --out results/advisor_mjx \
+        --omega 3 4 --settings mjx:wheel_torque_max=0.5 mjx:wheel_torque_max=1
 """
 
 from __future__ import annotations
@@ -42,8 +46,12 @@ class Args:
     """Seed of the main table."""
     extra_seeds: tuple[int, ...] = (1, 2, 3, 4)
     """Further seeds for training and validation (spread of the success rate)."""
+    motion: str = "kinematic"
+    """Motion model of every row: kinematic, mjx or mjx:KEY=VALUE,... (envs.parse_motion)."""
     omega: tuple[float, ...] = (2.0, 4.0)
     """ω_max values (rad/s) besides the default to show the sensitivity to; empty: none."""
+    settings: tuple[str, ...] = ()
+    """Other motion settings to show the sensitivity to (training and validation)."""
     out: str = "results/advisor"
     """Output path without extension (.md and .json)."""
     date: str = ""
@@ -54,8 +62,10 @@ def _advisor(params, obs):
     return advisor_action(obs, params)
 
 
-def run(arena: str, episodes: int, seeds: tuple[int, ...], **overrides) -> list[dict]:
-    env = envs.make_env(arena, **overrides)
+def run(
+    arena: str, episodes: int, seeds: tuple[int, ...], motion: str = "kinematic", **overrides
+) -> list[dict]:
+    env = envs.make_env(arena, motion=motion, **overrides)
     evaluate_fn = jax.jit(make_evaluate(env, _advisor, episodes))
     rows = []
     for seed in seeds:
@@ -63,32 +73,43 @@ def run(arena: str, episodes: int, seeds: tuple[int, ...], **overrides) -> list[
         rates, seconds = measure.run_timed(
             lambda key=key: summary(evaluate_fn(arena_advisor(env), key))
         )
-        row = {"arena": arena, "seed": seed, **overrides, **rates, "seconds": round(seconds, 1)}
+        row = {
+            "arena": arena,
+            "seed": seed,
+            "motion": env.config.motion_setting,
+            "omega_max": env.config.omega_max,
+            **rates,
+            "seconds": round(seconds, 1),
+        }
         print(json.dumps(row), flush=True)
         rows.append(row)
     return rows
 
 
 def main(args: Args) -> dict:
-    default_omega = envs.EnvConfig().omega_max
+    config = envs.make_env("training", motion=args.motion).config
     where = measure.provenance()
     result = {
         **where,
         "date": args.date or where["date"],
         "command": writing.command_line("experiments/calibrate_advisor.py", sys.argv[1:]),
         "machine": f"{where['host']}, {where['cpu_count']} CPUs, {where['device']}",
-        "omega_max_default": default_omega,
+        "motion": config.motion_setting,
+        "omega_max_default": config.omega_max,
         "main": [],
         "seeds": [],
         "omega": [],
+        "settings": [],
     }
     for arena in args.arenas:
-        result["main"] += run(arena, args.episodes, (args.seed,))
+        result["main"] += run(arena, args.episodes, (args.seed,), args.motion)
     for arena in ("training", "validation"):
         if args.extra_seeds:
-            result["seeds"] += run(arena, args.episodes, args.extra_seeds)
+            result["seeds"] += run(arena, args.episodes, args.extra_seeds, args.motion)
         for omega in args.omega:
-            result["omega"] += run(arena, args.episodes, (args.seed,), omega_max=omega)
+            result["omega"] += run(arena, args.episodes, (args.seed,), args.motion, omega_max=omega)
+        for setting in args.settings:
+            result["settings"] += run(arena, args.episodes, (args.seed,), setting)
     write(result, pathlib.Path(args.out))
     return result
 
@@ -116,6 +137,8 @@ def write(result: dict, out: pathlib.Path) -> None:
         f"- machine: {result['machine']}; jax {result['jax']}; date {result['date']}",
         f"- advisor: Algorithm A1 with the Table A1 constants, T_o = 0.5 m (physical 0.6 m); "
         f"ω_max = {result['omega_max_default']} rad/s, V_max = 1 m/s, dt = 0.05 s",
+        f"- motion model: `{result.get('motion', 'kinematic')}` (envs/motion.py; its "
+        "parameters: docs/arena_calibration.md)",
         "- each episode: random collision-free start (uniform position and heading) and goal "
         "≥ 1 m away; deterministic advisor; the first episode of each parallel env counts",
         "",
@@ -152,6 +175,16 @@ def write(result: dict, out: pathlib.Path) -> None:
             [(r["arena"], r["omega_max"], *_rates(r)) for r in rows],
             formats=("", "g", ""),
         )
+    if result.get("settings"):
+        lines += ["", "Other motion settings (the model's parameters changed), seed as above:", ""]
+        rows = sorted(result["settings"], key=lambda r: (r["arena"], r["motion"]))
+        lines += writing.markdown_table(
+            ("arena", "motion setting", "ω_max (rad/s)", "success", "collision", "timeout",
+             "mean collision speed"),
+            [(r["arena"], f"`{r['motion']}`", r["omega_max"], *_rates(r),
+              _speed(r["mean_collision_speed"])) for r in rows],
+            formats=("", "", "g", ""),
+        )  # fmt: skip
     writing.write_markdown(out.with_suffix(".md"), lines)
 
 

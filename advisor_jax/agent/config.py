@@ -42,6 +42,7 @@ from advisor_jax.agent.settings import (
 )
 from advisor_jax.agent.settings import freeze as freeze
 from advisor_jax.agent.settings import validate as validate_hparams
+from advisor_jax.contract import spec
 
 __all__ = ["HPARAM_NAMES", "SWITCHES", "HParams", "BaselineHParams", "freeze", "validate_hparams"]
 
@@ -223,6 +224,11 @@ class TrainConfig:
     """Environment steps per jitted host-loop iteration (progress, metrics, checkpoints)."""
     max_episode_steps: int = 0
     """h_max; 0 means the arena's default (300 simulation, 150 physical)."""
+    motion: str = "kinematic"
+    """Motion model of every arena (training and evaluation): kinematic (a unicycle,
+    (V, ω) take effect at once) or mjx (the P3DX's body and wheels stepped by MJX, with
+    acceleration, turn and speed limits), optionally with parameters, e.g.
+    mjx:wheel_torque_max=0.5 (envs/motion.py, docs/arena_calibration.md)."""
     snapshot_episodes: tuple[int, ...] = ()
     """Also keep each agent's actor as it was on completing this many episodes (each < N_total)
     and evaluate it beside the final one: nothing before episode N depends on N_total, so
@@ -231,6 +237,12 @@ class TrainConfig:
 
     def __post_init__(self):
         _positive("episodes", self.episodes)
+        model = str(self.motion).partition(":")[0]  # parameters: checked by envs.make_env
+        if model not in spec.MOTION_MODELS:
+            raise ValueError(
+                f"motion={self.motion!r}: unknown motion model {model!r}; choose one of "
+                f"{', '.join(spec.MOTION_MODELS)}"
+            )
         snaps = self.snapshot_episodes
         if list(snaps) != sorted(set(snaps)) or any(not 0 < n < self.episodes for n in snaps):
             raise ValueError(

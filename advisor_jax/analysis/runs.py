@@ -45,7 +45,7 @@ AGENT_FIELDS = (
     "precision",
     "baseline",
 )
-TRAIN_FIELDS = ("arena", "envs_per_agent", "updates_per_step", "max_episode_steps")
+TRAIN_FIELDS = ("arena", "envs_per_agent", "updates_per_step", "max_episode_steps", "motion")
 EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
 
 

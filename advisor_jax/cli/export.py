@@ -65,7 +65,7 @@ def export_command(args: ExportArgs) -> dict:
     sign_key = None if args.sign_key is None else read_key(args.sign_key, "--sign-key")
     key = seed_key(args.seed)
     cfg, row, actor = load_actor(args.source, args.agent)
-    env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)
+    env = envs.make_env(cfg.arena, motion=cfg.motion, max_episode_steps=cfg.max_episode_steps)
     policy_apply = make_actor(cfg.agent.actor_hidden).apply
     obs = rollout_observations(env, policy_apply, actor, key, args.golden_envs, args.golden_steps)
     config_meta = {

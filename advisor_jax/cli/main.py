@@ -54,6 +54,7 @@ def arena(
     name: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="NAME")],
     xml: Path,
     seed: int = 0,
+    motion: str = "kinematic",
 ) -> None:
     """Write an arena as a standalone MuJoCo XML file (loads in plain MuJoCo and the viewer).
 
@@ -62,10 +63,12 @@ def arena(
       xml: Output file, a new one (an existing file is never overwritten).
       seed: Procedural arena only: write the layout of the first episode of
         env.reset(key of seed), as drawn in training and evaluation.
+      motion: Motion model: kinematic, or mjx (adds the robot's mass, wheels and
+        actuators, which CPU MuJoCo can step).
     """
     from advisor_jax.training.population import seed_key
 
-    env = _envs().make_env(name)
+    env = _envs().make_env(name, motion=motion)
     boxes = env.layout_boxes(seed_key(seed)) if env.procedural else None
     text = env.xml(boxes)
     atomic_create_bytes(xml, text.encode())  # a new file; OSError: 'cannot write <xml>: <why>'
@@ -78,6 +81,7 @@ def evaluate(
     episodes: int = 500,
     seed: int = 0,
     json: bool = False,
+    motion: str | None = None,
 ) -> dict:
     """Evaluate a policy deterministically (no exploration noise) over many episodes at once.
 
@@ -91,14 +95,27 @@ def evaluate(
       episodes: Number of test episodes (the paper uses 500 for the advisor).
       seed: Seed of the episodes' starts, goals (and procedural layouts).
       json: Print one JSON object instead of a table.
+      motion: Motion model: kinematic, mjx or mjx:KEY=VALUE,... Default: the model the
+        policy was trained with (a run's or an export's), kinematic for the advisor; another
+        one evaluates the policy out of its training conditions, with a warning.
     """
     import jax
 
     from advisor_jax.training.limits import check_eval_episodes
 
     check_eval_episodes(episodes, 1, "--episodes")
-    env = _envs().make_env(arena)
-    from advisor_jax.cli.policy_spec import resolve_policy
+    from advisor_jax.cli.policy_spec import policy_motion, resolve_policy
+
+    envs = _envs()
+    trained = policy_motion(policy)
+    env = envs.make_env(arena, motion=motion or trained or "kinematic")
+    if motion is not None and trained is not None:
+        as_trained = envs.EnvConfig(**envs.parse_motion(trained)).motion_setting
+        if as_trained != env.config.motion_setting:
+            Console(stderr=True).print(
+                Text(f"warning: {policy} was trained with motion {as_trained!r}; evaluating "
+                     f"it with {env.config.motion_setting!r}", style="yellow")
+            )  # fmt: skip
     from advisor_jax.evaluation.evaluate import make_evaluate, summary
     from advisor_jax.training.population import seed_key
 
@@ -110,7 +127,13 @@ def evaluate(
     with status.status(f"compiling and running {episodes} episodes of {arena} (h_max = "
                        f"{env.max_episode_steps}) ..."):  # fmt: skip
         metrics = jax.block_until_ready(evaluate_fn(params, key))
-    result = {"policy": policy, "arena": arena, "seed": seed, **summary(metrics)}
+    result = {
+        "policy": policy,
+        "arena": arena,
+        "motion": env.config.motion_setting,
+        "seed": seed,
+        **summary(metrics),
+    }
     if json:
         print(jsonlib.dumps(result))
     else:

@@ -7,6 +7,25 @@ from pathlib import Path
 from typing import Any
 
 
+def policy_motion(policy: str) -> str | None:
+    """The motion setting a policy was trained with: a run's ``TrainConfig.motion``, an
+    export's ``env.motion`` (kinematic for those written before the motion models); None
+    for the advisor, which is not trained."""
+    if policy == "advisor":
+        return None
+    path, sep, suffix = policy.rpartition(":")
+    directory = Path(path if sep and suffix.isdigit() else policy)
+    if (directory / "policy.json").is_file():
+        from advisor_jax.runner.policy import load_policy
+
+        return load_policy(directory).env.get("motion", "kinematic")
+    if (directory / "run.json").is_file():
+        from advisor_jax.training.run_directory import load_run
+
+        return load_run(directory)[0].motion
+    return None  # resolve_policy names the problem
+
+
 def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
     """``(policy_apply, params)`` for a policy spec; ``policy_apply(params, obs) -> action``.
 

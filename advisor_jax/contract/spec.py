@@ -55,6 +55,10 @@ ACTION_HIGH = (1.0, 1.0)
 # Defaults shared by every arena (paper Table A1 / A3; docs/architecture.md, "Environment").
 V_MAX = 1.0  # m/s, Table A1
 CONTROL_DT = 0.05  # s, V-REP's default simulation step
+# How the simulator moves the robot (envs/motion.py): a kinematic unicycle, or the P3DX's
+# body and wheels stepped by MJX. A policy records the model it was trained with; the car
+# refuses one it does not know.
+MOTION_MODELS = ("kinematic", "mjx")
 MAX_RANGE = 1.0  # m, sensor cutoff; "no hit" reads this
 
 # P3DX sonar ring: direction of each sensor's beam in the robot frame (degrees, CCW

@@ -56,7 +56,9 @@ class ClosedLoopResult:
 def run_closed_loop(policy: Policy, episodes: int, key: jax.Array) -> ClosedLoopResult:
     """Runner-in-the-loop and JAX evaluation of ``policy`` on the same ``episodes``."""
     meta = policy.env
-    env = envs.make_env(meta["arena"], omega_max=policy.omega_max, max_episode_steps=meta["h_max"])
+    motion = meta.get("motion", "kinematic")  # exports before the motion models: kinematic
+    omega = {} if "omega_max" in envs.parse_motion(motion) else {"omega_max": policy.omega_max}
+    env = envs.make_env(meta["arena"], motion=motion, max_episode_steps=meta["h_max"], **omega)
     if env.rig.kind != "lidar":
         raise ValueError(f"closed loop needs a lidar arena (physical), not {meta['arena']!r}")
     params, hidden = actor_params_from_policy(policy)

@@ -186,11 +186,16 @@ def rollout_observations(env, policy_apply, params, key, n_envs: int, steps: int
 
 
 def population_evaluator(
-    arena: str, episodes: int, actor_hidden: Sequence[int], max_episode_steps: int = 0
+    arena: str,
+    episodes: int,
+    actor_hidden: Sequence[int],
+    max_episode_steps: int = 0,
+    motion: str = "kinematic",
 ) -> Callable[[Any, jax.Array], EvalMetrics]:
-    """jit(vmap over agents) of the evaluation of ``make_actor(actor_hidden)`` in ``arena``:
+    """jit(vmap over agents) of the evaluation of ``make_actor(actor_hidden)`` in ``arena``
+    under the ``motion`` model the agents trained with:
     ``(stacked actor params, key) -> EvalMetrics [agents, episodes]``."""
-    env = envs.make_env(arena, max_episode_steps=max_episode_steps)  # 0: the arena's h_max
+    env = envs.make_env(arena, motion=motion, max_episode_steps=max_episode_steps)  # 0: h_max
     fn = make_evaluate(env, make_actor(actor_hidden).apply, episodes)
     return jax.jit(jax.vmap(fn, in_axes=(0, None)))
 

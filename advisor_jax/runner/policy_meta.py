@@ -148,6 +148,16 @@ def check_meta(json_path: str, meta: Any) -> None:
         and bounds[2] < bounds[3]
     ):
         raise fail(json_path, f"env bounds {bounds!r} must be [xmin, xmax, ymin, ymax]")
+    # The simulator's motion model the actor trained with (absent before there were two:
+    # kinematic). The car drives itself either way; a model this runner does not know means
+    # an export from a newer simulator, whose other assumptions it cannot check either.
+    motion = meta["env"].get("motion", "kinematic")
+    if not isinstance(motion, str) or motion.partition(":")[0] not in spec.MOTION_MODELS:
+        raise fail(
+            json_path,
+            f"env.motion={motion!r}: trained with a motion model this runner does not know "
+            f"(it knows {', '.join(spec.MOTION_MODELS)})",
+        )
     try:
         expected = config_hash(meta["config"], meta["env"])
     except (TypeError, ValueError) as e:

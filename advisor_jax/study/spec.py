@@ -61,6 +61,7 @@ STATIC = {  # name: type; each a TrainArgs option (advisor-jax train --NAME)
     "envs_per_agent": int,
     "updates_per_step": int,
     "max_episode_steps": int,
+    "motion": str,
     "precision": str,
     "batch_size": int,
     "buffer_size": int,

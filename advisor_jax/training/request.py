@@ -97,6 +97,11 @@ class TrainArgs:
     """Gradient updates per environment step (default 1)."""
     max_episode_steps: int | None = None
     """h_max override (default: the arena's, 300 or 150 for physical)."""
+    motion: str | None = None
+    """Motion model of the arenas: kinematic (default; a unicycle, (V, ω) act at once) or
+    mjx (the Pioneer 3-DX's body and wheels stepped by MJX: acceleration, turn-rate and
+    speed limits), optionally with parameters, e.g. mjx:wheel_torque_max=0.5. Evaluation,
+    export and the car use the model the run trained with (docs/arena_calibration.md)."""
     precision: Literal["fp32", "bf16"] = "fp32"
     """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
     activations with fp32 parameters, Adam and accumulation (faster on GPUs with bf16
@@ -187,7 +192,7 @@ def build_run(args: TrainArgs):
     train_overrides = {
         name: getattr(args, name)
         for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",
-                     "max_episode_steps", "chunk_steps", "snapshot_episodes")
+                     "max_episode_steps", "chunk_steps", "snapshot_episodes", "motion")
         if getattr(args, name) is not None
     }  # fmt: skip
     cfg = dataclasses.replace(cfg, **train_overrides)

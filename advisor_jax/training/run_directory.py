@@ -89,7 +89,9 @@ def reevaluate(
     key = eval_key(eval_seed)
     arenas = tuple(arenas) or tuple(summary.get("evaluation") or ("training", "validation"))
     evaluators = evaluators or {
-        arena: population_evaluator(arena, episodes, cfg.agent.actor_hidden, cfg.max_episode_steps)
+        arena: population_evaluator(
+            arena, episodes, cfg.agent.actor_hidden, cfg.max_episode_steps, cfg.motion
+        )
         for arena in arenas
     }
     actor = load_params(run_dir, summary)["actor"]

@@ -50,7 +50,7 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
     if eval_episodes:
         evaluators = {
             arena: population_evaluator(
-                arena, eval_episodes, cfg.agent.actor_hidden, cfg.max_episode_steps
+                arena, eval_episodes, cfg.agent.actor_hidden, cfg.max_episode_steps, cfg.motion
             )
             for arena in eval_arenas
         }

@@ -136,7 +136,7 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
     Long: the factory of the step's closures, which share its env, learner and settings;
     each is short."""
     agent = cfg.agent
-    env = envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)  # 0: arena's
+    env = envs.make_env(cfg.arena, motion=cfg.motion, max_episode_steps=cfg.max_episode_steps)
     advisor = arena_advisor(env)
     bounds = functools.partial(return_bounds, env.config)
     learner = make_learner(agent, bounds, inputs_per_critic)
