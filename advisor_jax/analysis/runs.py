@@ -134,6 +134,12 @@ def find_runs(dirs: Sequence[Path]) -> tuple[list[tuple[Path, dict]], list[str],
             summary = json.loads(run_file.read_text())
             if summary.get("status") == "finished":
                 found.append((run_file.parent, summary))
+            elif (evaluated := evaluated_in_full(run_file.parent, summary)) is not None:
+                found.append((run_file.parent, {**summary, "evaluation": evaluated}))
+                notes.append(
+                    f"{run_file.parent}: stopped after its final evaluation was written (every "
+                    "agent played its episodes; eval.json holds every arena): read as finished"
+                )
             else:
                 notes.append(f"{run_file.parent}: status {summary.get('status')!r}, left out")
         for candidate in sorted(root.glob("*.json")):
@@ -141,6 +147,36 @@ def find_runs(dirs: Sequence[Path]) -> tuple[list[tuple[Path, dict]], list[str],
             if isinstance(record, dict) and record.get("policy") == "advisor":
                 advisors[record["arena"]] = {**record, "file": str(candidate)}
     return found, notes, advisors
+
+
+def evaluated_in_full(path: Path, summary: dict) -> dict | None:
+    """The final evaluation of an interrupted run that got as far as writing it, else None.
+
+    A run stopped during its final outputs (``run_outputs.finish_run``: parameters,
+    metrics, ``eval.json``, figures) has trained every agent to the end if every agent's
+    episode log is full; ``eval.json``, written whole once every arena is evaluated, then
+    holds the evaluation a finished run.json would carry. Anything less is left out."""
+    eval_file, metrics_file = path / "eval.json", path / "metrics.npz"
+    if summary.get("status") != "interrupted" or not (
+        eval_file.is_file() and metrics_file.is_file()
+    ):
+        return None
+    with np.load(metrics_file) as metrics:
+        outcome = metrics["outcome"]  # [agents, N_total]; 0 = not played
+        complete = outcome.shape[0] == len(summary["agents"]) and bool(np.all(outcome != 0))
+    evaluation = json.loads(eval_file.read_text())
+    n_agents = len(summary["agents"])
+    arenas_complete = (
+        isinstance(evaluation, dict)
+        and evaluation
+        and all(
+            isinstance(v, dict)
+            and isinstance(v.get("success"), list)
+            and len(v["success"]) == n_agents
+            for v in evaluation.values()
+        )
+    )
+    return evaluation if complete and arenas_complete else None
 
 
 def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:

@@ -112,3 +112,20 @@ def test_budget_figures_hold_the_advisor_share_and_eps_its_grid(tmp_path):
     rules = [p["eps_reaches_zero"] for p in eps["series"][0]["points"]]
     assert sorted(rules) == ["N_T", "N_T/2", "never"]
     assert all((out / f"{n}.png").is_file() for n in ("fig7", "fig11", "eps"))
+
+
+def test_a_claim_pairs_the_row_that_agrees_on_every_shared_setting(tmp_path):
+    """ATD3+AfDP at policy delay 2 in bf16 meets LfD in bf16 (not LfD at the preset's fp32,
+    which agrees on fewer settings), and the claim names the policy delay as what differs."""
+    from advisor_jax.analysis.items.table1 import claims, rows_of
+    from advisor_jax.analysis.runs import load_runs, pool
+
+    write_run(tmp_path, "atd3", "ATD3+AfDP", [0, 1, 2], [0.9, 0.8, 0.85], policy_delay=2,
+              precision="bf16")  # fmt: skip
+    write_run(tmp_path, "lfd_bf16", "LfD", [0, 1, 2], [0.6, 0.7, 0.65], precision="bf16")
+    write_run(tmp_path, "lfd_kin", "LfD", [0, 1, 2], [0.95, 0.95, 0.95])
+    found = [c for c in claims(rows_of(pool(load_runs([tmp_path]))[0]))
+             if c["kind"] == "over baseline"]  # fmt: skip
+    assert len(found) == 1
+    assert "precision=bf16" in found[0]["worse"] and found[0]["differs"] == ["policy_delay"]
+    assert found[0]["training"]["mean"] == pytest.approx(100 * (0.85 - 0.65))

@@ -33,6 +33,35 @@ def test_unfinished_runs_are_left_out_with_a_note(tmp_path):
     assert "status 'interrupted', left out" in runset.notes[0]
 
 
+def _interrupted_after_evaluation(root, name, outcome):
+    """A run stopped while writing its final outputs: eval.json written, run.json not."""
+    run = write_run(root, name, "DDPG", [0, 1], [0.8, 0.6], episodes=3, outcome=outcome)
+    summary = json.loads((run / "run.json").read_text())
+    (run / "eval.json").write_text(json.dumps(summary.pop("evaluation")))
+    summary["status"] = "interrupted"
+    (run / "run.json").write_text(json.dumps(summary))
+    return run
+
+
+def test_a_run_stopped_after_its_final_evaluation_is_read_as_finished(tmp_path):
+    _interrupted_after_evaluation(tmp_path, "a", [[1, 2, 3], [3, 2, 1]])
+    runset = load_runs([tmp_path])
+    assert [r.path.name for r in runset.runs] == ["a"]
+    assert "stopped after its final evaluation was written" in runset.notes[0]
+    (point,), _ = pool(runset)
+    assert point.scores("training") == {0: 0.8, 1: 0.6}
+
+
+def test_a_run_stopped_before_its_agents_finished_is_left_out(tmp_path):
+    _interrupted_after_evaluation(tmp_path, "a", [[1, 2, 3], [3, 2, 0]])  # an episode not played
+    run = write_run(tmp_path, "b", "DDPG", [2], [0.5], episodes=3, outcome=[[1, 1, 1]])
+    summary = json.loads((run / "run.json").read_text())
+    (run / "run.json").write_text(json.dumps({**summary, "status": "interrupted"}))  # no eval
+    runset = load_runs([tmp_path])
+    assert runset.runs == []
+    assert all("status 'interrupted', left out" in n for n in runset.notes)
+
+
 def test_runs_on_other_evaluation_episodes_are_refused(tmp_path):
     write_run(tmp_path, "a", "DDPG", [0], [0.8], eval_seed=0)
     write_run(tmp_path, "b", "DDPG", [1], [0.7], eval_seed=8)

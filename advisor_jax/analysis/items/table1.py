@@ -4,8 +4,9 @@ A row per point (agent type at its settings) of the final actors (not kept snaps
 cells are mean ± 95 % t interval over seeds and the IQM with its bootstrap interval. The
 paper's claims are tested seed by seed: its ordering of adjacent rows, the AfP effects and
 ATD3+AfDP over the baselines. A claim pairs each row of the better type with the row of
-the other type at the same settings, else with that type's row at its preset's ("differs:"
-names what then differs). Training success per 50 episodes shows when each type learns.
+the other type at the same settings, else with the row whose settings agree with it on
+every setting both name and differ in the fewest others ("differs:" names those).
+Training success per 50 episodes shows when each type learns.
 """
 
 from __future__ import annotations
@@ -56,11 +57,17 @@ def rows_of(points: list[Point]) -> list[Point]:
 
 
 def partner(row: Point, other: str, rows: list[Point]) -> Point | None:
-    """The row of type ``other`` at ``row``'s budget and settings, else its preset's row."""
+    """The row of type ``other`` at ``row``'s budget closest to ``row``'s settings: none of
+    the settings both name may differ (the same arena, motion model, switches...), and of
+    those, the one that names the fewest settings the other does not (a setting only one
+    type has, such as ATD3's policy delay, is then named as what "differs")."""
     same = [r for r in rows if r.agent == other and r.budget == row.budget]
-    exact = [r for r in same if r.label == row.label]
-    plain = [r for r in same if not r.label]
-    return (exact or plain or [None])[0]
+    compatible = [
+        r
+        for r in same
+        if all(r.label[k] == row.label[k] for k in r.label.keys() & row.label.keys())
+    ]
+    return min(compatible, key=lambda r: len(r.label.keys() ^ row.label.keys()), default=None)
 
 
 def claims(rows: list[Point]) -> list[dict]:

@@ -1,0 +1,24 @@
+"""experiments/arena_fidelity.py rebuilds results/arena_fidelity.json from the kept run data."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from tests.experiments.scripts import load_script
+
+RESULTS = Path(__file__).resolve().parents[2] / "results"
+
+
+def test_the_summary_is_made_from_the_kept_runs(tmp_path):
+    record = load_script("arena_fidelity").main(tmp_path)
+    cells = {(c["arena"], c["settings"]): c for c in record["cells"]}
+    assert set(cells) == {(a, s) for a in ("kinematic", "mjx") for s in ("stable", "paper")}
+    assert not cells["kinematic", "paper"]["kept"]
+    mjx = cells["mjx", "stable"]
+    assert set(mjx["rows"]) == {"ATD3+AfDP", "LfD", "MCP+MF", "DDPG"}
+    assert all(row["seeds"] == 16 for row in mjx["rows"].values())
+    pair = mjx["pairs"]["ATD3+AfDP - LfD"]["training"]
+    assert pair["seeds"] == 16
+    committed = json.loads((RESULTS / "arena_fidelity.json").read_text())
+    assert json.loads(json.dumps(record["cells"])) == committed["cells"]  # the file is current
