@@ -27,6 +27,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -128,9 +129,16 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return atomic_write_bytes(path, text.encode())
 
 
-def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
+def atomic_write_json(path: str | os.PathLike, obj: Any, compact_lists: bool = False) -> Path:
+    """``obj`` as indented JSON; ``compact_lists``: a list of numbers on one line (figures'
+    series stay readable and a few times smaller)."""
     text = json.dumps(obj, indent=2, default=_jsonable)
+    if compact_lists:
+        text = _NUMBER_LIST.sub(lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
     return atomic_write_text(path, text + "\n")
+
+
+_NUMBER_LIST = re.compile(r"\[\s+((?:(?:-?[0-9.eE+-]+|null|true|false),?\s+)+)\]")
 
 
 def atomic_write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:

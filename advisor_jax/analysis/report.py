@@ -28,6 +28,8 @@ from advisor_jax.analysis.runs import load_runs, pool
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.training.plots import save_png
 
+FIGURE_DPI = 90  # figures for a screen; results/ stays small (README: keep it under 20 MB)
+
 ITEMS = {
     "table1": table1.table1,
     "table2": table2.table2,
@@ -111,9 +113,10 @@ def make_report(
             **item.record,
             "provenance": provenance(item, command),
         }
-        written.append(atomic_write_json(out / f"{item.name}.json", _strict(record)))
+        json_file = out / f"{item.name}.json"
+        written.append(atomic_write_json(json_file, _strict(record), compact_lists=True))
         if item.figure is not None:
-            written.append(save_png(item.figure, out / f"{item.name}.png"))
+            written.append(save_png(item.figure, out / f"{item.name}.png", dpi=FIGURE_DPI))
         sections += _section(item, record["provenance"])
         say(f"{item.name}: {item.title}")
     lines = [

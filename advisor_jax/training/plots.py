@@ -113,11 +113,11 @@ def plot_diagnostics(path: Path, series: Mapping[str, np.ndarray], agents, grid,
     save_png(fig, path)
 
 
-def save_png(fig, path: str | Path) -> Path:
-    """Writes a matplotlib figure as PNG (110 dpi) atomically and closes it."""
+def save_png(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Writes a matplotlib figure as PNG atomically and closes it."""
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format="png")
+    fig.savefig(buf, dpi=dpi, format="png")
     plt.close(fig)
     return atomic_write_bytes(path, buf.getvalue())
