@@ -1,6 +1,6 @@
 # issue 17, round 1: steady program (no lax.cond per step) and command-buffer scheduling modes,
 # 1 agent bf16, 1000-step chunks, best of 5, one process per setting, alternating with HEAD (.ref).
-source .gpu/setup.sh
+# environment: MuJoCo 3.17.0, MuJoCo MJX and tyro installed beside jax 0.11.2 (CUDA)
 mkdir -p $OUT/r1
 B="experiments/bench_train.py --agents 1 --chunk 1000 --repeats 5 --out $OUT/r1"
 one() { name=$1; shift; echo "== $name XLA_FLAGS=$XLA_FLAGS"; timeout 150 python3 $B --name $name "$@" 2>&1 | grep -E "env-steps|Error|error" | tail -3; }

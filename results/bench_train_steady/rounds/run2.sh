@@ -1,6 +1,6 @@
 # issue 17, round 2: command-buffer scheduling (CONCURRENT) and whole-loop graphs (+WHILE) on the
 # steady program, the general program and HEAD (.ref); an unrolled-block variant (.var).
-source .gpu/setup.sh
+# environment: MuJoCo 3.17.0, MuJoCo MJX and tyro installed beside jax 0.11.2 (CUDA)
 mkdir -p $OUT/r2
 B="experiments/bench_train.py --chunk 1000 --repeats 5 --precision bf16 --out $OUT/r2"
 b() { dir=$1; name=$2; shift 2; echo "== $name [$dir] XLA_FLAGS=$XLA_FLAGS $*"; (cd $dir && PYTHONPATH=$PWD:$PYTHONPATH timeout 170 python3 $B --name $name "$@" 2>&1 | grep -E "env-steps|Error" | tail -2); }

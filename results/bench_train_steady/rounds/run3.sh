@@ -1,5 +1,5 @@
 # issue 17, round 3: the committed steady program and compile options against HEAD (.ref).
-source .gpu/setup.sh
+# environment: MuJoCo 3.17.0, MuJoCo MJX and tyro installed beside jax 0.11.2 (CUDA)
 mkdir -p $OUT/r3 /tmp/dd
 XLA_FLAGS="--xla_dump_to=/tmp/dd" python3 -c "import jax, jax.numpy as jnp; jax.jit(lambda x: x + 1)(jnp.ones(3))" 2>/dev/null
 echo "== XLA's default command buffer types:"; grep -rho "xla_gpu_enable_command_buffer: [A-Z_]*" /tmp/dd | sort | uniq -c | head -20

@@ -1,5 +1,5 @@
 # issue 17, round 4: the learner benchmark against HEAD (.ref); steady/general parity at paper sizes.
-source .gpu/setup.sh
+# environment: MuJoCo 3.17.0, MuJoCo MJX and tyro installed beside jax 0.11.2 (CUDA)
 mkdir -p $OUT/r4/learner $OUT/r4/parity
 python3 experiments/bench_learner.py --agents 128 1 --updates 100 --precision bf16 --reference .ref --out $OUT/r4/learner 2>&1 | grep -E "agent-updates|Error|^\|" | tail -16
 python3 experiments/steady_parity.py --agents 4 --chunks 3 --precision bf16 --name steady_parity_bf16 --out $OUT/r4/parity 2>&1 | grep -E "^\||Error" | tail -9

@@ -1,6 +1,6 @@
 # issue 17, round 6: where the latency-bound program stops paying: steady vs general program,
 # one process each, with peak memory; the learner benchmark's per-call overhead at 1 agent.
-source .gpu/setup.sh
+# environment: MuJoCo 3.17.0, MuJoCo MJX and tyro installed beside jax 0.11.2 (CUDA)
 mkdir -p $OUT/t
 B="python3 experiments/bench_train.py --chunk 500 --repeats 3 --out $OUT/t"
 for n in 16 32; do for p in steady general; do
