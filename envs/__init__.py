@@ -3,6 +3,9 @@
     env = envs.make_env("training", omega_max=2.0)   # NavEnv
     state = env.reset(key); state = env.step(state, action)
 
+``envs.make_brax_env(arena, ...)`` gives the same arena as a ``brax.envs.Env`` for brax's
+wrappers and trainers (``envs/brax_env.py``; brax is imported only then).
+
 Arenas: ``training`` and ``validation`` (5 m × 5 m, Fig. 2), ``physical`` (4.9 m × 3 m,
 200-beam lidar reduced to 16 zones) and ``procedural`` (a new random layout per episode).
 """
@@ -39,7 +42,16 @@ def make_env(arena: str, **config_overrides) -> NavEnv:
     return NavEnv(arena, EnvConfig(**config_overrides))
 
 
+def __getattr__(name: str):
+    """``make_brax_env`` and ``BraxNavEnv`` import brax on first use only."""
+    if name in ("make_brax_env", "BraxNavEnv"):
+        from envs import brax_env
+
+        return getattr(brax_env, name)
+    raise AttributeError(f"module 'envs' has no attribute {name!r}")
+
+
 __all__ = [
     "ARENAS", "COLLISION", "GOAL", "OUTCOME_NAMES", "RUNNING", "TIMEOUT",
-    "EnvConfig", "NavEnv", "NavState", "make_env",
+    "BraxNavEnv", "EnvConfig", "NavEnv", "NavState", "make_brax_env", "make_env",
 ]  # fmt: skip
