@@ -16,7 +16,7 @@ from advisor_jax.analysis.runs import Point, _show
 
 ARENAS = ("training", "validation")
 BASELINES = ("LfD", "MCP+MF")
-ORDER = (*PAPER_AGENTS, *BASELINES, "TD3", "ATD3", "ATD3+AfD")
+ORDER = (*PAPER_AGENTS, *BASELINES, "brax-SAC", "brax-PPO", "TD3", "ATD3", "ATD3+AfD")
 ADVISOR_LEVEL = 0.5  # the advisor's own success (results/advisor.md): a seed below it collapsed
 PAPER_TABLE1 = {  # success %, training / validation environment (paper Table 1)
     "DDPG": (72.2, 71.3),
