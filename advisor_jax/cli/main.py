@@ -35,6 +35,7 @@ from rich.table import Table
 from rich.text import Text
 
 from advisor_jax.cli.export import ExportArgs, export_command
+from advisor_jax.cli.helptext import flowing
 from advisor_jax.cli.report import ReportArgs, report_command
 from advisor_jax.cli.sweep import SweepArgs, sweep_command
 from advisor_jax.cli.train import TrainArgs, train_command
@@ -50,6 +51,7 @@ def _envs():
     return envs
 
 
+@flowing
 def arena(
     name: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="NAME")],
     xml: Path,
@@ -72,6 +74,7 @@ def arena(
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
 
 
+@flowing
 def evaluate(
     policy: str = "advisor",
     arena: str = "training",
