@@ -49,6 +49,8 @@ def _write_temporary(path: Path, data: bytes, make_parents: bool = True) -> str:
     directories, or, without ``make_parents``, only in an existing one); returns the
     temporary file's name. Errors name ``path``."""
     if not make_parents and not path.parent.is_dir():
+        if os.path.lexists(path.parent):
+            raise NotADirectoryError(f"cannot write {path}: {path.parent} is not a directory")
         raise FileNotFoundError(
             f"cannot write {path}: the directory {path.parent} does not exist (create it "
             "first, or choose another path)"

@@ -112,3 +112,25 @@ def test_budget_figures_hold_the_advisor_share_and_eps_its_grid(tmp_path):
     rules = [p["eps_reaches_zero"] for p in eps["series"][0]["points"]]
     assert sorted(rules) == ["N_T", "N_T/2", "never"]
     assert all((out / f"{n}.png").is_file() for n in ("fig7", "fig11", "eps"))
+
+
+def test_every_figure_labels_its_axes(runs, tmp_path, monkeypatch):
+    """Every panel with data has an x and a y label (issue 38: plots without y labels)."""
+    import advisor_jax.analysis.report as report
+
+    figures = {}
+    real_save = report.save_png
+
+    def keep(fig, path):
+        figures[path.name] = fig
+        return real_save(fig, path)
+
+    monkeypatch.setattr(report, "save_png", keep)
+    make_report([runs], tmp_path / "report", versus_settings=["clip_q_target=1"],
+                say=lambda m: 0)  # fmt: skip
+    assert len(figures) >= 3
+    for name, fig in figures.items():
+        for ax in fig.axes:
+            if ax.get_visible() and (ax.lines or ax.collections or ax.patches):
+                assert ax.get_xlabel() or ax.get_xticklabels(), (name, ax.get_title())
+                assert ax.get_ylabel(), (name, ax.get_title())

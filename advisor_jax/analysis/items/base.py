@@ -208,6 +208,14 @@ def interval_note(points: Sequence[Point]) -> str:
     return note
 
 
+def episode_axis(ax, label: str = "episode") -> None:
+    """An x axis of episode counts: labelled, whole numbers only (a short run drew 1.5)."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.set_xlabel(label)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+
+
 def figure(rows: int = 1, cols: int = 1, width: float = 5.0, height: float = 3.8, **kw):
     import matplotlib
 
