@@ -7,8 +7,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
-import struct
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -30,6 +28,7 @@ from advisor_jax.training.brax_baselines.trainer import train_seed
 from advisor_jax.training.population import eval_key
 from advisor_jax.training.run_directory import load_agent_policy
 from tests.analysis.fake_runs import write_run
+from tests.training.event_files import scalars
 
 EPISODES, H_MAX, EVAL = 60, 100, 32
 
@@ -93,7 +92,7 @@ def test_evaluate_repeats_eval_json(sac_run, capsys):
 
 def test_tensorboard_event_files_read_back(sac_run):
     _, tb = sac_run
-    tags = _scalars(tb)
+    tags = scalars(tb)
     assert "agent0/episodes" in tags and "agent0/training/critic_loss" in tags
     steps = [step for step, _ in tags["agent0/episodes"]]
     assert steps == sorted(steps) and tags["agent0/episodes"][-1][1] >= EPISODES
@@ -176,21 +175,3 @@ def test_brax_ppo_trains_under_the_budget():
     assert result.episodes_completed <= 4 and result.env_steps % 16 == 0
     action = policy_apply(settings)(result.params, np.zeros((3, 20), np.float32))
     assert action.shape == (3, 2) and np.all((action[:, 0] >= 0) & (action[:, 0] <= 1))
-
-
-def _scalars(logdir: Path) -> dict[str, list[tuple[int, float]]]:
-    """{tag: [(step, value)]} of the TensorBoard event files in ``logdir``: TFRecord framing
-    (length, CRC, Event proto, CRC) decoded with the Event proto tensorboardX ships."""
-    from tensorboardX.proto import event_pb2
-
-    out: dict[str, list[tuple[int, float]]] = {}
-    for path in sorted(logdir.glob("events.out.tfevents.*")):
-        data = path.read_bytes()
-        at = 0
-        while at < len(data):
-            (length,) = struct.unpack("<Q", data[at : at + 8])
-            event = event_pb2.Event.FromString(data[at + 12 : at + 12 + length])
-            at += 12 + length + 4
-            for value in event.summary.value:
-                out.setdefault(value.tag, []).append((event.step, value.simple_value))
-    return out
