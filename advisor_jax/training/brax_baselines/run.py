@@ -20,10 +20,12 @@ report`` pools the rows with the others:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import json
 import shutil
+import tempfile
 from pathlib import Path
 
 import jax
@@ -100,9 +102,36 @@ def run_brax_training(req: BraxRequest, console: Console | None = None, progress
         return _finish(req, summary, results, console)
 
 
+@contextlib.contextmanager
+def compile_cache(folder: Path):
+    """jax's persistent compilation cache in ``folder`` for the block (removed after), unless
+    one is configured already: brax builds new jitted functions in every call, so each seed
+    would compile the same programs again (results/brax_baselines_cpu.md). Effective only if
+    nothing was compiled before in this process (jax reads the setting once), as in
+    ``advisor-jax train``."""
+    if jax.config.jax_compilation_cache_dir:
+        yield
+        return
+    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
+    before = [getattr(jax.config, n) for n in names]
+    jax.config.update(names[0], str(folder))
+    jax.config.update(names[1], 0.5)
+    try:
+        yield
+    finally:
+        for name, value in zip(names, before, strict=True):
+            jax.config.update(name, value)
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _train_seeds(req, summary, console, progress, tracker, stop) -> list[dict]:
     """Every agent's result ({"params", "episodes", "record"}), trained or, when resuming,
     read back from ``agents/``."""
+    with compile_cache(Path(tempfile.mkdtemp(prefix="brax-xla-"))):
+        return _train_each(req, summary, console, progress, tracker, stop)
+
+
+def _train_each(req, summary, console, progress, tracker, stop) -> list[dict]:
     env = envs.make_brax_env(req.arena, max_episode_steps=req.max_episode_steps)
     budget = Budget(req.episodes, req.settings.num_envs, env.episode_length)
     agents = summary["agents"]
