@@ -42,16 +42,21 @@ def make_env(arena: str, **config_overrides) -> NavEnv:
     return NavEnv(arena, EnvConfig(**config_overrides))
 
 
-def __getattr__(name: str):
-    """``make_brax_env`` and ``BraxNavEnv`` import brax on first use only."""
-    if name in ("make_brax_env", "BraxNavEnv"):
-        from envs import brax_env
+def make_brax_env(arena: str, **config_overrides):
+    """``make_env(arena, **config_overrides)`` as a ``brax.envs.Env`` (``envs/brax_env.py``;
+    imports brax). ``max_episode_steps`` (h_max, 0: the arena's) becomes its
+    ``episode_length``, the limit to give brax's EpisodeWrapper; the NavEnv inside runs
+    without a time limit of its own."""
+    from envs.brax_env import NO_TIME_LIMIT, BraxNavEnv
 
-        return getattr(brax_env, name)
-    raise AttributeError(f"module 'envs' has no attribute {name!r}")
+    h_max = config_overrides.pop("max_episode_steps", 0)
+    if isinstance(h_max, bool) or not isinstance(h_max, int) or h_max < 0:
+        raise ValueError(f"max_episode_steps must be an integer >= 0, got {h_max!r}")
+    nav = make_env(arena, max_episode_steps=NO_TIME_LIMIT, **config_overrides)
+    return BraxNavEnv(nav, h_max or ARENA_SPECS[arena].h_max)
 
 
 __all__ = [
     "ARENAS", "COLLISION", "GOAL", "OUTCOME_NAMES", "RUNNING", "TIMEOUT",
-    "BraxNavEnv", "EnvConfig", "NavEnv", "NavState", "make_brax_env", "make_env",
+    "EnvConfig", "NavEnv", "NavState", "make_brax_env", "make_env",
 ]  # fmt: skip

@@ -1,6 +1,6 @@
 """Every arena as a ``brax.envs.Env``, so brax's wrappers and trainers take it as it is.
 
-    env = envs.make_brax_env("training")        # the arguments of envs.make_env
+    env = envs.make_brax_env("training")        # envs/__init__.py: the arguments of make_env
     env = brax.envs.training.wrap(env, episode_length=env.episode_length)
     make_policy, params, _ = brax.training.agents.sac.train.train(env, ...)
 
@@ -35,7 +35,6 @@ from brax.envs.base import Env, State, Wrapper
 from brax.envs.wrappers.training import EpisodeWrapper, VmapWrapper
 
 from envs import brax_compat
-from envs.layouts import ARENA_SPECS
 from envs.navigation import COLLISION, GOAL, NavEnv
 
 brax_compat.install()  # brax 0.14's trainers on jax >= 0.10 (brax issue 671)
@@ -99,18 +98,6 @@ def to_nav_action(action: jax.Array) -> jax.Array:
     """brax's action a ∈ [-1, 1]² -> the arena's normalised (V ∈ [0, 1], ω ∈ [-1, 1])."""
     action = jnp.asarray(action, jnp.float32)
     return jnp.stack([(action[..., 0] + 1.0) / 2.0, action[..., 1]], axis=-1)
-
-
-def make_brax_env(arena: str, **config_overrides) -> BraxNavEnv:
-    """``make_env(arena, **config_overrides)`` as a brax env. ``max_episode_steps`` (h_max,
-    0: the arena's) becomes ``episode_length``, the limit to give brax's EpisodeWrapper."""
-    from envs import make_env
-
-    h_max = config_overrides.pop("max_episode_steps", 0)
-    if isinstance(h_max, bool) or not isinstance(h_max, int) or h_max < 0:
-        raise ValueError(f"max_episode_steps must be an integer >= 0, got {h_max!r}")
-    nav = make_env(arena, max_episode_steps=NO_TIME_LIMIT, **config_overrides)
-    return BraxNavEnv(nav, h_max or ARENA_SPECS[arena].h_max)
 
 
 class FreshAutoResetWrapper(Wrapper):
