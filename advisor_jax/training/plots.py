@@ -52,7 +52,9 @@ def plot_learning_curves(
             mean = np.nanmean(curves, axis=0) if np.isfinite(curves).any() else curves[0]
             (line,) = ax.plot(episodes, mean, label=f"{label} ({seeds_text(len(members))})")
             if len(members) >= MIN_SEEDS_FOR_INTERVAL:  # a spread of 2 seeds says little
-                std = np.nanstd(curves, axis=0)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # episodes without data
+                    std = np.nanstd(curves, axis=0)
                 ax.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.2)
     if advisor_data:
         expected = np.nanmean(metrics["expected_max_firing_rate"][keep], axis=0)

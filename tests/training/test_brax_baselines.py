@@ -175,3 +175,40 @@ def test_brax_ppo_trains_under_the_budget():
     assert result.episodes_completed <= 4 and result.env_steps % 16 == 0
     action = policy_apply(settings)(result.params, np.zeros((3, 20), np.float32))
     assert action.shape == (3, 2) and np.all((action[:, 0] >= 0) & (action[:, 0] <= 1))
+
+
+def test_an_interrupted_run_resumes_at_its_first_unfinished_seed(tmp_path, monkeypatch):
+    """Each finished seed is saved at once; Ctrl-C during the next one leaves status
+    "interrupted", and --resume trains only the seeds not saved (brax not run here)."""
+    from advisor_jax.training import interrupts
+    from advisor_jax.training.brax_baselines import run as brax_run
+    from advisor_jax.training.brax_baselines.request import BraxRequest
+    from advisor_jax.training.brax_baselines.trainer import SeedResult
+
+    trained = []
+
+    def fake_seed(agent, settings, env, seed, budget, on_epoch):
+        if seed == 1 and not trained.count(1) and len(trained) == 1:
+            trained.append(1)
+            raise interrupts.Interrupted(2)
+        trained.append(seed)
+        episodes = {"outcome": np.full(budget.n_total, envs.GOAL, np.int32),
+                    "length": np.full(budget.n_total, 7, np.int32),
+                    "episode_return": np.full(budget.n_total, 9.5, np.float32),
+                    "collision_speed": np.full(budget.n_total, np.nan, np.float32)}  # fmt: skip
+        params = {"obs_mean": np.full(20, seed, np.float32), "obs_std": np.ones(20, np.float32)}
+        return SeedResult(params, episodes, 70 * (seed + 1), budget.n_total, 1.0, [])
+
+    monkeypatch.setattr(brax_run, "train_seed", fake_seed)
+    request = BraxRequest("brax-SAC", default_settings("brax-SAC", "quick"), "quick", "training",
+                          10, 0, (0, 1, 2), tmp_path / "run", 0, ("training",), 0)  # fmt: skip
+    with pytest.raises(interrupts.Interrupted) as stop:
+        brax_run.run_brax_training(request, progress=False)
+    assert "during agent 1 of 3: 1 finished agent saved" in stop.value.detail
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["status"] == "interrupted"
+    summary = brax_run.run_brax_training(dataclasses.replace(request, resume=True),
+                                         progress=False)  # fmt: skip
+    assert trained == [0, 1, 1, 2] and summary["status"] == "finished"
+    assert summary["env_steps_per_agent"] == [70, 140, 210]
+    _, params = load_agent_policy(tmp_path / "run", 2)
+    np.testing.assert_array_equal(params["obs_mean"], np.full(20, 2.0))

@@ -96,8 +96,9 @@ def run_brax_training(req: BraxRequest, console: Console | None = None, progress
             atomic_write_json(run_file, summary)
             signum = getattr(e, "signum", 2)
             raise interrupts.Interrupted(
-                signum, f"during agent {done} of {len(agents)}: {done} finished agents saved; "
-                f"continue with --resume (--out {req.out})"
+                signum, f"during agent {done} of {len(agents)}: "
+                f"{reporting.count_text(done, 'finished agent')} saved; continue with "
+                f"--resume (--out {req.out})"
             ) from None  # fmt: skip
         return _finish(req, summary, results, console)
 
