@@ -93,8 +93,8 @@ def main() -> None:
         "",
         "Wall time: the whole `advisor-jax train` command (start-up, compiles, training, "
         "evaluation, files); training: run.json's `train_seconds` (advisor-jax: the "
-        "population's training loop; brax: every seed's call of brax's trainer, compiles "
-        "included, since brax compiles inside each call). advisor-jax trains all seeds as "
+        "population's training loop, its compile included; brax: every seed's call of "
+        "brax's trainer, its compiles included). advisor-jax trains all seeds as "
         "one vmapped program; brax trains one seed per call, one after another.",
         "",
         *table,
