@@ -20,9 +20,11 @@ report`` pools the rows with the others:
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import dataclasses
 import datetime
+import functools
 import json
 import shutil
 import tempfile
@@ -79,6 +81,8 @@ def run_brax_training(req: BraxRequest, console: Console | None = None, progress
         "identity": run_state.run_identity(config, agents),
     }
     run_file = req.out / "run.json"
+    if req.resume and not run_file.exists():
+        raise ValueError(f"nothing to resume: {run_file} does not exist")
     announce = lambda line: console.print(line, soft_wrap=True, highlight=False)  # noqa: E731
     with runlock.exclusive(req.out), interrupts.stop_requests(announce) as stop:
         run_state.check_directory(req.out, req.resume)
@@ -104,31 +108,38 @@ def run_brax_training(req: BraxRequest, console: Console | None = None, progress
 
 
 @contextlib.contextmanager
-def compile_cache(folder: Path):
-    """jax's persistent compilation cache in ``folder`` for the block (removed after), unless
-    one is configured already: brax builds new jitted functions in every call, so each seed
-    would compile the same programs again (results/brax_baselines_cpu.md). Effective only if
-    nothing was compiled before in this process (jax reads the setting once), as in
-    ``advisor-jax train``."""
+def compile_cache():
+    """jax's persistent compilation cache for the block, in a folder of this process
+    (removed when it exits), unless one is configured already: brax builds new jitted
+    functions in every call, so each seed would compile the same programs again
+    (results/brax_baselines_cpu.md). Effective only if nothing was compiled before in this
+    process (jax reads the setting once), as in ``advisor-jax train``; jax may go on using
+    the folder after the block, hence its lifetime."""
     if jax.config.jax_compilation_cache_dir:
         yield
         return
     names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
     before = [getattr(jax.config, n) for n in names]
-    jax.config.update(names[0], str(folder))
+    jax.config.update(names[0], str(_process_cache_folder()))
     jax.config.update(names[1], 0.5)
     try:
         yield
     finally:
         for name, value in zip(names, before, strict=True):
             jax.config.update(name, value)
-        shutil.rmtree(folder, ignore_errors=True)
+
+
+@functools.cache
+def _process_cache_folder() -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="advisor-jax-xla-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
 
 
 def _train_seeds(req, summary, console, progress, tracker, stop) -> list[dict]:
     """Every agent's result ({"params", "episodes", "record"}), trained or, when resuming,
     read back from ``agents/``."""
-    with compile_cache(Path(tempfile.mkdtemp(prefix="brax-xla-"))):
+    with compile_cache():
         return _train_each(req, summary, console, progress, tracker, stop)
 
 
