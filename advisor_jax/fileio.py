@@ -45,11 +45,20 @@ def _cannot(verb: str, path: str | os.PathLike, e: OSError) -> OSError:
     return err
 
 
-def _write_temporary(path: Path, data: bytes) -> str:
+def _write_temporary(path: Path, data: bytes, make_parents: bool = True) -> str:
     """``data`` in a new, fsynced temporary file beside ``path`` (created with its parent
-    directories); returns the temporary file's name. Errors name ``path``."""
+    directories, or, without ``make_parents``, only in an existing one); returns the
+    temporary file's name. Errors name ``path``."""
+    if not make_parents and not path.parent.is_dir():
+        if os.path.lexists(path.parent):
+            raise NotADirectoryError(f"cannot write {path}: {path.parent} is not a directory")
+        raise FileNotFoundError(
+            f"cannot write {path}: the directory {path.parent} does not exist (create it "
+            "first, or choose another path)"
+        )
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if make_parents:
+            path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except FileExistsError as e:  # mkdir met a file where a directory should be
         raise OSError(f"cannot write {path}: {e.filename} is not a directory") from e
@@ -90,11 +99,12 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 def atomic_create_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Writes ``data`` to the new file ``path``, atomically; FileExistsError naming it if
-    anything (a file, a link) is there already."""
+    anything (a file, a link) is there already, FileNotFoundError if its directory does not
+    exist (a typo there must not create directories)."""
     path = Path(path)
     if os.path.lexists(path):
         raise FileExistsError(f"{path} exists already; it is never overwritten: choose another")
-    tmp = _write_temporary(path, data)
+    tmp = _write_temporary(path, data, make_parents=False)
     try:
         os.link(tmp, path)  # fails, like O_EXCL, if the name was taken meanwhile
     except FileExistsError:

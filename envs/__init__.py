@@ -4,6 +4,9 @@
     env = envs.make_env("training", motion="mjx")    # the robot's motion simulated by MJX
     state = env.reset(key); state = env.step(state, action)
 
+``envs.make_brax_env(arena, ...)`` gives the same arena as a ``brax.envs.Env`` for brax's
+wrappers and trainers (``envs/brax_env.py``; brax is imported only then).
+
 Arenas: ``training`` and ``validation`` (5 m × 5 m, Fig. 2), ``physical`` (4.9 m × 3 m,
 200-beam lidar reduced to 16 zones) and ``procedural`` (a new random layout per episode).
 Motion models (``motion.py``): ``kinematic`` (a unicycle, the default) and ``mjx`` (a
@@ -51,7 +54,21 @@ def make_env(arena: str, motion: str = "kinematic", **config_overrides) -> NavEn
     return NavEnv(arena, EnvConfig(**settings, **config_overrides))
 
 
+def make_brax_env(arena: str, **config_overrides):
+    """``make_env(arena, **config_overrides)`` as a ``brax.envs.Env`` (``envs/brax_env.py``;
+    imports brax). ``max_episode_steps`` (h_max, 0: the arena's) becomes its
+    ``episode_length``, the limit to give brax's EpisodeWrapper; the NavEnv inside runs
+    without a time limit of its own."""
+    from envs.brax_env import NO_TIME_LIMIT, BraxNavEnv
+
+    h_max = config_overrides.pop("max_episode_steps", 0)
+    if isinstance(h_max, bool) or not isinstance(h_max, int) or h_max < 0:
+        raise ValueError(f"max_episode_steps must be an integer >= 0, got {h_max!r}")
+    nav = make_env(arena, max_episode_steps=NO_TIME_LIMIT, **config_overrides)
+    return BraxNavEnv(nav, h_max or ARENA_SPECS[arena].h_max)
+
+
 __all__ = [
     "ARENAS", "COLLISION", "GOAL", "MOTION_MODELS", "OUTCOME_NAMES", "RUNNING", "TIMEOUT",
-    "DriveParams", "EnvConfig", "NavEnv", "NavState", "make_env", "parse_motion",
+    "DriveParams", "EnvConfig", "NavEnv", "NavState", "make_brax_env", "make_env", "parse_motion",
 ]  # fmt: skip

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import sys
 from pathlib import Path
 
 import jax
@@ -21,6 +22,7 @@ import envs
 from advisor_jax.bench import measure, writing
 from advisor_jax.evaluation.closed_loop import binomial_ci95, run_closed_loop
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.runner.errors import RunnerError
 from advisor_jax.runner.policy import load_policy
 
 
@@ -31,9 +33,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()
-    policy = load_policy(args.policy)
-    key = jax.random.PRNGKey(args.seed)
-    r, seconds = measure.run_timed(lambda: run_closed_loop(policy, args.episodes, key))
+    try:
+        policy = load_policy(args.policy)
+        key = jax.random.PRNGKey(args.seed)
+        r, seconds = measure.run_timed(lambda: run_closed_loop(policy, args.episodes, key))
+    except (ValueError, OSError, RunnerError) as e:  # a wrong export: one line, no traceback
+        sys.exit(f"closed_loop.py: error: {e}")
     names = envs.OUTCOME_NAMES
     rows = {
         "runner": {n: float(np.mean(r.runner_outcomes == i)) for i, n in enumerate(names) if i},

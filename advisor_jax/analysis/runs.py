@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from advisor_jax.agent.brax_agents import brax_agent_name, default_settings
 from advisor_jax.agent.config import HPARAM_NAMES, AgentConfig, TrainConfig, preset
 from advisor_jax.agent.hparams import HPARAM_DEFAULTS
 from advisor_jax.agent.settings import flat_items
@@ -262,8 +263,12 @@ def _setting(value):
 
 def settings_of(summary: dict, row: dict) -> dict:
     """Everything that changes what one agent learns: every hyperparameter (a field an older
-    run.json lacks: ``HParams``'s default, what that run trained with) and static setting."""
+    run.json lacks: ``HParams``'s default, what that run trained with) and static setting;
+    for a brax agent, its brax settings (``gamma`` = its discounting), arena and h_max."""
     config = summary["config"]
+    if summary.get("kind") == "brax":
+        brax = {k: _setting(v) for k, v in config["brax"].items()}
+        return {**brax, "gamma": brax["discounting"], **_brax_task(config)}
     agent_defaults, train_defaults = AgentConfig(), TrainConfig()
     out = {n: _setting(float(row.get(n, HPARAM_DEFAULTS[n]))) for n in HPARAM_NAMES}
     for field in AGENT_FIELDS:
@@ -273,8 +278,25 @@ def settings_of(summary: dict, row: dict) -> dict:
     return out
 
 
+def _brax_task(config: dict) -> dict:
+    return {
+        "arena": config.get("arena", "training"),
+        "max_episode_steps": config.get("max_episode_steps", 0),
+    }
+
+
+def _brax_differences(preset_name: str, agent: str, settings: dict) -> dict:
+    static, _ = preset(preset_name, "DDPG")
+    brax = default_settings(agent, preset_name)
+    default = {k: _setting(v) for k, v in dataclasses.asdict(brax).items()}
+    default |= {"gamma": default["discounting"], **_brax_task(dataclasses.asdict(static))}
+    return {k: v for k, v in settings.items() if default.get(k) != v}
+
+
 def preset_differences(preset_name: str, agent: str, settings: dict) -> dict:
     """The settings in which an agent differs from ``preset_name``'s for its type."""
+    if brax_agent_name(agent) is not None:
+        return _brax_differences(preset_name, agent, settings)
     static, hp = preset(preset_name, agent)
     hp_values = {**HPARAM_DEFAULTS, **flat_items(hp)}
     out = {}

@@ -9,8 +9,10 @@ from typing import Annotated
 import tyro
 
 from advisor_jax.agent.config import HPARAM_NAMES
+from advisor_jax.cli.helptext import flowing
 
 
+@flowing
 @dataclasses.dataclass(frozen=True)
 class ExportArgs:
     """Export a trained actor (policy.npz, policy.json, golden.npz [, policy.onnx]).

@@ -35,6 +35,7 @@ from rich.table import Table
 from rich.text import Text
 
 from advisor_jax.cli.export import ExportArgs, export_command
+from advisor_jax.cli.helptext import flowing
 from advisor_jax.cli.report import ReportArgs, report_command
 from advisor_jax.cli.sweep import SweepArgs, sweep_command
 from advisor_jax.cli.train import TrainArgs, train_command
@@ -50,6 +51,7 @@ def _envs():
     return envs
 
 
+@flowing
 def arena(
     name: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="NAME")],
     xml: Path,
@@ -75,25 +77,34 @@ def arena(
     Console(stderr=True).print(Text(f"wrote {xml} ({env.arena_name}, {len(text)} bytes)"))
 
 
+@flowing
 def evaluate(
     policy: str = "advisor",
     arena: str = "training",
-    episodes: int = 500,
-    seed: int = 0,
+    episodes: int | None = None,
+    seed: int | None = None,
+    eval_seed: int | None = None,
     json: bool = False,
     motion: str | None = None,
 ) -> dict:
     """Evaluate a policy deterministically (no exploration noise) over many episodes at once.
 
     Runs all episodes as parallel environments (each one's first episode counts) and
-    prints the success, collision and timeout rates and the mean collision speed.
+    prints the success, collision and timeout rates and the mean collision speed. A run's
+    agent (RUN:AGENT) is scored by default on the episodes of its own eval.json, so the
+    numbers repeat the run's.
 
     Args:
       policy: advisor (the paper's rule-based advisor, Alg. A1), a training run directory
-        RUN[:AGENT] (agent index, default 0) or an export directory.
+        RUN[:AGENT] (agent index, default 0; brax-SAC and brax-PPO runs too) or an export
+        directory.
       arena: Arena: training, validation, physical or procedural.
-      episodes: Number of test episodes (the paper uses 500 for the advisor).
-      seed: Seed of the episodes' starts, goals (and procedural layouts).
+      episodes: Number of test episodes (default: for a run, as many as its eval.json
+        holds for this arena; otherwise 500, the paper's count for the advisor).
+      seed: Seed of the episodes' starts, goals (and procedural layouts) (default 0; not
+        the key of a run's evaluation: see --eval-seed).
+      eval_seed: Score on the episodes that train --eval-seed S scores its agents on
+        (default for a run: its own, the episodes of its eval.json).
       json: Print one JSON object instead of a table.
       motion: Motion model: kinematic, mjx or mjx:KEY=VALUE,... Default: the model the
         policy was trained with (a run's or an export's), kinematic for the advisor; another
@@ -101,14 +112,27 @@ def evaluate(
     """
     import jax
 
+    from advisor_jax.cli.policy_spec import RunSpec, parse_policy, resolve_policy
     from advisor_jax.training.limits import check_eval_episodes
+    from advisor_jax.training.population import eval_key, seed_key
 
+    if seed is not None and eval_seed is not None:
+        raise ValueError("give --seed or --eval-seed, not both")
+    run = parse_policy(policy)
+    run = run if isinstance(run, RunSpec) else None
+    if episodes is None:
+        episodes = run.eval_episodes.get(arena, 500) if run else 500
     check_eval_episodes(episodes, 1, "--episodes")
-    from advisor_jax.cli.policy_spec import policy_motion, resolve_policy
+    from advisor_jax.cli.policy_spec import policy_motion
 
+    if run is not None and seed is None and eval_seed is None:
+        eval_seed = run.eval_seed
+    # before compiling: a bad seed fails fast
+    key = eval_key(eval_seed) if eval_seed is not None else seed_key(seed or 0)
     envs = _envs()
     trained = policy_motion(policy)
-    env = envs.make_env(arena, motion=motion or trained or "kinematic")
+    env = envs.make_env(arena, motion=motion or trained or "kinematic",
+                        max_episode_steps=run.max_episode_steps if run else 0)  # fmt: skip
     if motion is not None and trained is not None:
         as_trained = envs.EnvConfig(**envs.parse_motion(trained)).motion_setting
         if as_trained != env.config.motion_setting:
@@ -117,23 +141,20 @@ def evaluate(
                      f"it with {env.config.motion_setting!r}", style="yellow")
             )  # fmt: skip
     from advisor_jax.evaluation.evaluate import make_evaluate, summary
-    from advisor_jax.training.population import seed_key
-
-    key = seed_key(seed)  # before compiling: a bad --seed fails fast
 
     apply, params = resolve_policy(policy, env)
     evaluate_fn = jax.jit(make_evaluate(env, apply, episodes))
     status = Console(stderr=True)
+    if run is not None and eval_seed == run.eval_seed and episodes == run.eval_episodes.get(arena):
+        status.print(f"the episodes of {run.directory}/eval.json (eval seed {eval_seed}, "
+                     f"{episodes} in {arena}): its numbers for agent {run.index}",
+                     soft_wrap=True, highlight=False)  # fmt: skip
     with status.status(f"compiling and running {episodes} episodes of {arena} (h_max = "
                        f"{env.max_episode_steps}) ..."):  # fmt: skip
         metrics = jax.block_until_ready(evaluate_fn(params, key))
-    result = {
-        "policy": policy,
-        "arena": arena,
-        "motion": env.config.motion_setting,
-        "seed": seed,
-        **summary(metrics),
-    }
+    which = {"eval_seed": eval_seed} if eval_seed is not None else {"seed": seed or 0}
+    result = {"policy": policy, "arena": arena, "motion": env.config.motion_setting, **which,
+              **summary(metrics)}  # fmt: skip
     if json:
         print(jsonlib.dumps(result))
     else:

@@ -10,7 +10,10 @@ from typing import Annotated
 import tyro
 from rich.console import Console
 
+from advisor_jax.cli.helptext import flowing
 
+
+@flowing
 @dataclasses.dataclass(frozen=True)
 class ReportArgs:
     """Pool the finished runs below DIR... and write each paper item they support.

@@ -10,11 +10,13 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from advisor_jax.cli.helptext import flowing
 from advisor_jax.study import plan as planning
 from advisor_jax.study import sweep, throughput
 from advisor_jax.study.spec import StudyError, load_study
 
 
+@flowing
 @dataclasses.dataclass(frozen=True)
 class SweepArgs:
     """Train every agent of a study file: its pieces on every local GPU at once.

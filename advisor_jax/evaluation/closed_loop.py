@@ -27,9 +27,10 @@ import envs
 from advisor_jax.agent.networks import make_actor
 from advisor_jax.deploy.export import actor_params_from_policy
 from advisor_jax.evaluation import evaluate
+from advisor_jax.evaluation.sim_car import lidar_angles_cw, rplidar_scan
 from advisor_jax.runner.drive import DiffDrive
 from advisor_jax.runner.loop import RUN, Controller, LoopConfig
-from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig, Pose, Scan
+from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig, Pose
 from advisor_jax.runner.policy import Policy
 
 
@@ -60,15 +61,18 @@ def run_closed_loop(policy: Policy, episodes: int, key: jax.Array) -> ClosedLoop
     omega = {} if "omega_max" in envs.parse_motion(motion) else {"omega_max": policy.omega_max}
     env = envs.make_env(meta["arena"], motion=motion, max_episode_steps=meta["h_max"], **omega)
     if env.rig.kind != "lidar":
-        raise ValueError(f"closed loop needs a lidar arena (physical), not {meta['arena']!r}")
+        raise ValueError(
+            f"{policy.directory} was trained in the {meta['arena']!r} arena (16 sonar rays): "
+            "the car and its closed loop drive lidar policies of the physical arena; export "
+            "an agent trained with --preset physical"
+        )
     params, hidden = actor_params_from_policy(policy)
     evaluate_fn = evaluate.make_evaluate(env, make_actor(hidden).apply, episodes)
     jax_outcomes = np.asarray(jax.jit(evaluate_fn)(params, key).outcome)
 
     readings = jax.jit(env.sensor_readings)
     reset, step = jax.jit(env.reset), jax.jit(env.step)
-    # Beam directions as the lidar reports them: degrees clockwise in [0, 360).
-    angle_cw = np.mod(-np.asarray(env.rig.directions_deg, np.float64), 360.0)
+    angle_cw = lidar_angles_cw(env)
     obs_cfg = ObservationConfig(
         max_range=policy.max_range, range_offset=policy.range_offset, bounds=policy.bounds
     )
@@ -81,9 +85,7 @@ def run_closed_loop(policy: Policy, episodes: int, key: jax.Array) -> ClosedLoop
         controller = Controller(policy, builder, drive, loop_cfg)
         for t in range(env.max_episode_steps):
             now = t * policy.dt
-            raw = np.asarray(readings(state.pose), np.float64)
-            mm = np.where(raw > 0, raw * 1000.0, 0.0)
-            scan = Scan(np.stack([np.full_like(mm, 15.0), angle_cw, mm], -1), stamp=now)
+            scan = rplidar_scan(readings(state.pose), angle_cw, stamp=now)
             x, y, theta = (float(v) for v in state.pose)
             result = controller.cycle(now, scan, Pose(x, y, theta, t=now, stamp=now))
             if result.state == RUN:

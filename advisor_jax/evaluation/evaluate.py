@@ -195,8 +195,22 @@ def population_evaluator(
     """jit(vmap over agents) of the evaluation of ``make_actor(actor_hidden)`` in ``arena``
     under the ``motion`` model the agents trained with:
     ``(stacked actor params, key) -> EvalMetrics [agents, episodes]``."""
+    return policy_population_evaluator(
+        arena, episodes, make_actor(actor_hidden).apply, max_episode_steps, motion
+    )
+
+
+def policy_population_evaluator(
+    arena: str,
+    episodes: int,
+    policy_apply: PolicyApply,
+    max_episode_steps: int = 0,
+    motion: str = "kinematic",
+) -> Callable[[Any, jax.Array], EvalMetrics]:
+    """``population_evaluator`` of any policy: ``policy_apply(params, obs) -> action`` (a
+    brax agent's, ``agent.brax_agents.policy_apply``) over params stacked on agents."""
     env = envs.make_env(arena, motion=motion, max_episode_steps=max_episode_steps)  # 0: h_max
-    fn = make_evaluate(env, make_actor(actor_hidden).apply, episodes)
+    fn = make_evaluate(env, policy_apply, episodes)
     return jax.jit(jax.vmap(fn, in_axes=(0, None)))
 
 

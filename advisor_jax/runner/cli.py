@@ -4,6 +4,7 @@
         [--rate HZ] [--lidar-port /dev/ttyUSB0] [--pose-udp 0.0.0.0:5005] [--log FILE] \\
         [--limits FILE] [--max-speed M/S] [--max-yaw-rate RAD/S] [--verify-key KEYFILE] \\
         [--dry-run | --motor package.module:factory]
+    advisor-jax-car POLICY_DIR --sim [--seed S] [--goal X Y] [--log FILE]   # no car
     advisor-jax-car --replay LOG [POLICY_DIR]
 
 Driving: verifies the export (``policy.load_policy``; its signature too with
@@ -14,7 +15,9 @@ over an existing one), opens the lidar and the pose socket, and runs the watchdo
 (``loop.py``) until the goal, a collision, ``--max-cycles`` or Ctrl-C / SIGTERM; motors are
 stopped on every exit path, with further signals ignored until they are. ``--dry-run``
 prints the commands instead of sending them. Replay re-feeds a log's
-inputs through the policy and exits 1 if any decision differs. Errors print one line
+inputs through the policy and exits 1 if any decision differs. ``--sim`` runs the same
+loop against the simulated physical arena (``advisor_jax/cli/car.py`` supplies the
+simulator, which needs JAX; this module does not import it). Errors print one line
 (``advisor-jax-car: error: ...``) and exit 2. argparse only: no tyro on the car.
 
 OpenBLAS is limited to one thread (unless OPENBLAS_NUM_THREADS is already set) before numpy
@@ -32,13 +35,13 @@ import argparse  # noqa: E402
 import math  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
 
 from advisor_jax.runner import cyclelog, hardware  # noqa: E402
 from advisor_jax.runner.cyclelog import log_header  # noqa: E402
 from advisor_jax.runner.drive import AckermannDrive, DiffDrive  # noqa: E402
 from advisor_jax.runner.errors import RunnerError  # noqa: E402
-from advisor_jax.runner.limits import CAR_SPEC, check_policy, limits_from_options  # noqa: E402
+from advisor_jax.runner.limits import check_policy, limits_from_options  # noqa: E402
 from advisor_jax.runner.loop import (  # noqa: E402
     Controller,
     LoopConfig,
@@ -46,167 +49,9 @@ from advisor_jax.runner.loop import (  # noqa: E402
     signals_ignored,
 )
 from advisor_jax.runner.observation import ObservationBuilder, ObservationConfig  # noqa: E402
+from advisor_jax.runner.options import PROG, build_parser  # noqa: E402
 from advisor_jax.runner.policy import load_policy  # noqa: E402
 from advisor_jax.runner.replay import replay  # noqa: E402
-
-PROG = "advisor-jax-car"
-EPILOG = """\
-The tracker must send one UDP datagram per pose, a JSON object
-  {"t": capture time s (its own clock), "x": m, "y": m, "theta": rad CCW from +x}
-in the arena frame of policy.json (origin at the arena centre, x right, y up).
---dry-run uses the real lidar and tracker but prints motor commands instead of
-sending them. Watchdog: the car stops on stale, missing or invalid data and on any
-error, and drives again when fresh data arrive; the run ends at the goal
-(d <= goal tolerance) or on a collision (min zone <= collision distance).
-Defaults: rate 1/dt of policy.json, scan/pose max age 0.3 s, --min-valid 20,
---max-pose-speed 3 m/s, --pose-udp 0.0.0.0:5005, --lidar-port /dev/ttyUSB0.
-
-examples:
-  advisor-jax-car runs/export --goal 1.5 0.8 --drive ackermann --wheelbase 0.26 \\
-      --max-steer 25 --motor mycar.motors:make_driver
-  advisor-jax-car --replay advisor-jax-car-20261122-101500.jsonl
-"""
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog=PROG,
-        description="Drive the car with an exported policy (numpy only), or replay a log.",
-        epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("policy_dir", nargs="?", help="export directory (policy.json, .npz)")
-    p.add_argument(
-        "--goal",
-        nargs=2,
-        type=float,
-        metavar=("X", "Y"),
-        help="goal in the arena frame of policy.json (m)",
-    )
-    p.add_argument("--replay", metavar="LOG", help="replay a loop log instead of driving")
-    p.add_argument(
-        "--replay-tolerance",
-        type=float,
-        default=0.0,
-        help="allowed |difference| in replay (default 0: bit-exact)",
-    )
-    p.add_argument(
-        "--rate",
-        type=float,
-        help="control rate in Hz (default 1 / policy dt); its period may not exceed the "
-        "watchdog's --max-scan-age / --max-pose-age",
-    )
-    p.add_argument("--max-cycles", type=int, help="stop after this many cycles")
-    p.add_argument(
-        "--no-warm-up",
-        dest="warm_up",
-        action="store_false",
-        help="skip the warm-up pass (zones + actor on the previous cycle's inputs, results "
-        "discarded) that brings weights and code back into cache before each cycle",
-    )
-    _add_sensor_args(p)
-    _add_safety_args(p)
-    g = p.add_argument_group("drive")
-    g.add_argument("--drive", choices=("diff", "ackermann"))
-    g.add_argument("--track-width", type=float, metavar="M", help="diff: wheel separation")
-    g.add_argument("--max-wheel-speed", type=float, metavar="M/S")
-    g.add_argument("--wheelbase", type=float, metavar="M", help="ackermann: axle distance")
-    g.add_argument("--max-steer", type=float, metavar="DEG", help="ackermann: steering lock")
-    g.add_argument("--dry-run", action="store_true", help="print commands, drive no motors")
-    g.add_argument("--motor", metavar="MODULE:FACTORY", help="motor driver factory")
-    p.add_argument(
-        "--log",
-        help="JSONL log, a new file (default advisor-jax-car-<UTC time>.jsonl); an existing "
-        "file is never overwritten",
-    )
-    return p
-
-
-def _add_sensor_args(p: argparse.ArgumentParser) -> None:
-    """The lidar's and the pose tracker's options."""
-    g = p.add_argument_group("lidar (RPLIDAR)")
-    g.add_argument("--lidar-port", default="/dev/ttyUSB0")
-    g.add_argument("--lidar-baud", type=int, default=115200)
-    g.add_argument(
-        "--lidar-yaw",
-        type=float,
-        default=0.0,
-        metavar="DEG",
-        help="robot-frame direction (CCW deg) of the lidar's 0 mark; 180 if reversed; "
-        "a multiple of 1/64 deg, the RPLIDAR's angle step",
-    )
-    g.add_argument(
-        "--range-offset",
-        type=float,
-        metavar="M",
-        help="lidar origin to body edge (default: policy.json)",
-    )
-    g.add_argument("--min-valid", type=int, default=20, help="fewest valid readings per scan")
-    g.add_argument("--min-quality", type=float, default=0.0)
-    g.add_argument(
-        "--min-range",
-        type=float,
-        default=0.0,
-        metavar="M",
-        help="drop closer readings (chassis hits; an A2 measures from 0.15 m)",
-    )
-    g = p.add_argument_group("pose tracker")
-    g.add_argument(
-        "--pose-udp",
-        default="0.0.0.0:5005",
-        metavar="HOST:PORT",
-        help='listen for {"t", "x", "y", "theta"} JSON datagrams',
-    )
-    g.add_argument(
-        "--max-pose-speed",
-        type=float,
-        default=3.0,
-        metavar="M/S",
-        help="faster apparent motion is a tracker glitch",
-    )
-
-
-def _add_safety_args(p: argparse.ArgumentParser) -> None:
-    """The watchdog's options and the car's own limits."""
-    g = p.add_argument_group("watchdog")
-    g.add_argument("--max-scan-age", type=float, default=0.3, metavar="S")
-    g.add_argument("--max-pose-age", type=float, default=0.3, metavar="S")
-    g.add_argument(
-        "--goal-tolerance",
-        type=float,
-        metavar="M",
-        help="stop at the goal (default: T_g of policy.json, else 0.15)",
-    )
-    g.add_argument(
-        "--collision-distance",
-        type=float,
-        metavar="M",
-        help="stop when min zone <= this (default: T_c of policy.json; <0: never)",
-    )
-    g = p.add_argument_group("the car's own limits (never taken from the policy directory)")
-    g.add_argument(
-        "--limits",
-        metavar="FILE",
-        help="operator's JSON file: max_speed (m/s), max_yaw_rate (rad/s), verify_key (a key "
-        "file: every export must be signed with it)",
-    )
-    g.add_argument(
-        "--max-speed",
-        type=float,
-        metavar="M/S",
-        help=f"forward speed limit (default {CAR_SPEC['max_speed']:g}, or the limits file)",
-    )
-    g.add_argument(
-        "--max-yaw-rate",
-        type=float,
-        metavar="RAD/S",
-        help=f"yaw-rate limit (default {CAR_SPEC['max_yaw_rate']:g}, or the limits file)",
-    )
-    g.add_argument(
-        "--verify-key",
-        metavar="KEYFILE",
-        help="refuse any export not signed with this key (advisor-jax export --sign-key)",
-    )
 
 
 def _drive_from_args(args: argparse.Namespace):
@@ -250,10 +95,20 @@ def _shutdown(motor, *sources) -> None:
             print(f"{PROG}: warning: {what} failed: {e}", file=sys.stderr)
 
 
-def drive(args: argparse.Namespace) -> int:
-    if args.policy_dir is None or args.goal is None:
+def drive(args: argparse.Namespace, simulator: Callable | None = None) -> int:
+    """Drives the car, or with ``simulator`` (``--sim``; ``advisor_jax.cli.car``) the same
+    loop against a simulated car: ``simulator(args, policy)`` returns an object that is
+    the lidar, the tracker, the motors and the clock (``evaluation.sim_car.SimulatedCar``)."""
+    if args.sim and simulator is None:
+        raise ValueError(
+            "--sim needs advisor-jax's simulator (JAX, MuJoCo): run advisor-jax-car from a "
+            "full install (pip install advisor-jax), not the car's numpy-only one"
+        )
+    if args.policy_dir is None or (args.goal is None and not args.sim):
         raise ValueError("driving needs POLICY_DIR and --goal X Y")
-    drive_model = _drive_from_args(args)  # argument errors before any hardware is touched
+    if args.sim and (args.motor or args.dry_run):
+        raise ValueError("--sim drives the simulated car: leave out --motor and --dry-run")
+    drive_model = _drive_from_args(args) if args.drive or not args.sim else None
     host, port = _host_port(args.pose_udp)
     if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
         raise ValueError(f"--rate {args.rate:g} Hz: the control rate must be a positive number")
@@ -262,6 +117,63 @@ def drive(args: argparse.Namespace) -> int:
     policy = load_policy(args.policy_dir, verify_key=key)
     check_policy(os.path.join(args.policy_dir, "policy.json"), policy.v_max, policy.omega_max,
                  limits)  # fmt: skip
+    car = simulator(args, policy) if args.sim else None
+    goal = tuple(args.goal) if args.goal is not None else car.goal
+    if car is not None:
+        drive_model = car.drive = drive_model or car.drive  # the sim inverts the same drive
+    controller, rate = _controller(args, policy, limits, goal, drive_model)
+    if car is not None:
+        motor = car
+    elif args.dry_run:
+        motor = hardware.PrintMotorDriver()
+    elif args.motor:
+        motor = hardware.load_motor_driver(args.motor)
+    else:
+        raise ValueError("no motor driver: pass --motor MODULE:FACTORY, or --dry-run")
+    if args.log is not None and os.path.lexists(args.log):  # before any hardware is opened
+        raise FileExistsError(f"{args.log} exists already; it is never overwritten: choose "
+                              "another --log")  # fmt: skip
+    log = log_path = scans = poses = None
+    previous_handler = signal.signal(signal.SIGTERM, _raise_interrupt)  # systemd/kill → stop
+    try:
+        motor.stop()
+        if car is None:
+            scans = hardware.RplidarScanSource(args.lidar_port, baudrate=args.lidar_baud)
+            poses = hardware.UdpPoseSource(host, port)
+            timing = {}
+        else:
+            scans, poses, timing = car.scans, car.poses, {"clock": car.clock, "sleep": car.sleep}
+        log = cyclelog.new_log(args.log, PROG)  # a new file, never over an existing one
+        log_path = log.path
+        log.write(log_header(controller, policy, argv=sys.argv))
+        where = "the simulated car" if car is not None else ""
+        print(
+            f"{PROG}: driving {where + ' ' if where else ''}to ({goal[0]:g}, {goal[1]:g}) at "
+            f"{rate:g} Hz within the {limits.describe()}; log {log_path}; Ctrl-C stops",
+            file=sys.stderr,
+        )
+        summary = run_loop(controller, scans, poses, motor, log=log, **timing)
+    except KeyboardInterrupt:
+        with signals_ignored():
+            print(f"{PROG}: interrupted; motors stopped; log {log_path}", file=sys.stderr)
+        return 130
+    finally:
+        with signals_ignored():
+            signal.signal(signal.SIGTERM, previous_handler)
+            _shutdown(motor, *((scans, poses) if car is None else ()))
+            if log is not None:
+                log.close()
+    stops = ", ".join(f"{k} x{v}" for k, v in summary.stops.items()) or "none"
+    print(
+        f"{PROG}: ended ({summary.end}) after {summary.cycles} cycles; stops: {stops}; "
+        f"overruns: {summary.overruns}; log {log_path}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+def _controller(args, policy, limits, goal, drive_model) -> tuple[Controller, float]:
+    """The watchdog controller the options describe, and its control rate."""
     obs_cfg = ObservationConfig(
         max_range=policy.max_range,
         range_offset=policy.range_offset if args.range_offset is None else args.range_offset,
@@ -281,7 +193,7 @@ def drive(args: argparse.Namespace) -> int:
             "training (correct only if that is this car's lidar-to-body-edge distance)",
             file=sys.stderr,
         )
-    builder = ObservationBuilder(obs_cfg, tuple(args.goal))
+    builder = ObservationBuilder(obs_cfg, goal)
     collision = _default(args.collision_distance, policy.env, "T_c", None)
     if args.collision_distance is None and collision is not None and not collision >= 0:
         raise ValueError(  # only the operator may turn the collision stop off, never a file
@@ -289,13 +201,16 @@ def drive(args: argparse.Namespace) -> int:
             "collision stop off; give --collision-distance to choose it on the car's side"
         )
     rate = args.rate if args.rate is not None else 1.0 / policy.dt
+    max_cycles = args.max_cycles
+    if args.sim and max_cycles is None:  # a simulated episode ends at h_max, as in training
+        max_cycles = int(policy.env.get("h_max") or 0) or None
     loop_cfg = LoopConfig(
         rate_hz=rate,
         max_scan_age=args.max_scan_age,
         max_pose_age=args.max_pose_age,
         goal_tolerance=_default(args.goal_tolerance, policy.env, "T_g", 0.15),
         collision_distance=None if collision is None or collision < 0 else collision,
-        max_cycles=args.max_cycles,
+        max_cycles=max_cycles,
         max_speed=limits.max_speed,
         max_yaw_rate=limits.max_yaw_rate,
         warm_up=args.warm_up,
@@ -307,47 +222,7 @@ def drive(args: argparse.Namespace) -> int:
             f"{1 / policy.dt:g} Hz; the velocity inputs will not match",
             file=sys.stderr,
         )
-    if args.dry_run:
-        motor = hardware.PrintMotorDriver()
-    elif args.motor:
-        motor = hardware.load_motor_driver(args.motor)
-    else:
-        raise ValueError("no motor driver: pass --motor MODULE:FACTORY, or --dry-run")
-    if args.log is not None and os.path.lexists(args.log):  # before any hardware is opened
-        raise FileExistsError(f"{args.log} exists already; it is never overwritten: choose "
-                              "another --log")  # fmt: skip
-    log = log_path = scans = poses = None
-    previous_handler = signal.signal(signal.SIGTERM, _raise_interrupt)  # systemd/kill → stop
-    try:
-        motor.stop()
-        scans = hardware.RplidarScanSource(args.lidar_port, baudrate=args.lidar_baud)
-        poses = hardware.UdpPoseSource(host, port)
-        log = cyclelog.new_log(args.log, PROG)  # a new file, never over an existing one
-        log_path = log.path
-        log.write(log_header(controller, policy, argv=sys.argv))
-        print(
-            f"{PROG}: driving to ({args.goal[0]:g}, {args.goal[1]:g}) at {rate:g} Hz within "
-            f"the {limits.describe()}; log {log_path}; Ctrl-C stops",
-            file=sys.stderr,
-        )
-        summary = run_loop(controller, scans, poses, motor, log=log)
-    except KeyboardInterrupt:
-        with signals_ignored():
-            print(f"{PROG}: interrupted; motors stopped; log {log_path}", file=sys.stderr)
-        return 130
-    finally:
-        with signals_ignored():
-            signal.signal(signal.SIGTERM, previous_handler)
-            _shutdown(motor, scans, poses)
-            if log is not None:
-                log.close()
-    stops = ", ".join(f"{k} x{v}" for k, v in summary.stops.items()) or "none"
-    print(
-        f"{PROG}: ended ({summary.end}) after {summary.cycles} cycles; stops: {stops}; "
-        f"overruns: {summary.overruns}; log {log_path}",
-        file=sys.stderr,
-    )
-    return 0
+    return controller, rate
 
 
 def replay_command(args: argparse.Namespace) -> int:
@@ -370,10 +245,11 @@ def replay_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, simulator: Callable | None = None) -> int:
+    """Entry point of the car's runner; ``simulator`` enables ``--sim`` (``cli/car.py``)."""
     args = build_parser().parse_args(argv)
     try:
-        return replay_command(args) if args.replay else drive(args)
+        return replay_command(args) if args.replay else drive(args, simulator)
     except (RunnerError, ValueError, OSError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2

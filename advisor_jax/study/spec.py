@@ -49,6 +49,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from advisor_jax.agent.baselines import check_baseline_hparams
+from advisor_jax.agent.brax_agents import brax_agent_name
 from advisor_jax.agent.config import HPARAM_NAMES, preset
 from advisor_jax.agent.hparams import HPARAM_DEFAULTS
 from advisor_jax.agent.settings import flat_items
@@ -341,6 +342,11 @@ def _groups(study: Study, agent: str, static: dict, hp: dict, grid: dict) -> lis
     for combo in itertools.product(*swept.values()):
         static_values = dict(zip(swept, combo, strict=True))
         label = f"{agent}" + "".join(f", {k}={v}" for k, v in static_values.items())
+        if brax_agent_name(agent) is not None:
+            raise StudyError(
+                f"{label}: brax agents train one seed after another with advisor-jax train, "
+                "not as a study's population (experiments/paper/brax_baselines.sh)"
+            )
         try:
             cfg, base = preset(study.preset, agent)
         except ValueError as e:

@@ -101,6 +101,7 @@ def run_training(
     devices: int | None = None,
     eval_seed: int | None = None,
     points: Sequence[Mapping[str, float]] | None = None,
+    tracker: Any = None,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
@@ -116,6 +117,7 @@ def run_training(
     one are evaluated on the same episodes, so their agents can be pooled and paired.
     ``points``: explicit grid points in place of the product of ``grid``'s values
     (``population.build_population``); ``grid`` then names the swept hyperparameters.
+    ``tracker`` (``tracking.make_tracker``) also receives every chunk's log row.
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -159,7 +161,7 @@ def run_training(
             eval_episodes=eval_episodes, eval_arenas=eval_arenas,
             checkpoint_every=checkpoint_every, resume=resume, progress=progress,
             console=console, meta=meta, program=program, placement=placement,
-            eval_from=eval_from,
+            eval_from=eval_from, tracker=tracker,
         )  # fmt: skip
         return _train_locked(plan, stop)
 
@@ -183,6 +185,7 @@ class RunPlan:
     program: tuple  # ``population_functions(cfg, placement)``
     placement: Placement
     eval_from: int  # the evaluation episodes' seed
+    tracker: Any = None  # ``tracking.Tracker`` or None
 
 
 def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
@@ -307,6 +310,8 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
                 line = reporting.chunk_line(step, time.perf_counter() - t_start, episodes, metrics)
                 if writer:
                     append_line(log_path, json.dumps(line, allow_nan=False))
+                    if run.tracker is not None:
+                        run.tracker.log_chunk(line)
                 bar.update(int(episodes.sum()), line)
                 done = _all_done(episodes, diverged, n_total)
                 if not done and checkpoint_every and chunks % checkpoint_every == 0:

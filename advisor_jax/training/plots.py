@@ -16,15 +16,20 @@ import numpy as np
 
 import envs
 from advisor_jax.fileio import atomic_write_bytes
-from advisor_jax.training.reporting import group_agents, group_label, moving_average
+from advisor_jax.stats import MIN_SEEDS_FOR_INTERVAL
+from advisor_jax.training.reporting import group_agents, group_label, moving_average, seeds_text
 
 
-def plot_learning_curves(path: Path, metrics, agents, grid, cfg) -> None:
-    """Fig. 8-style reward per step and success, moving average, mean ± std over seeds."""
+def plot_learning_curves(
+    path: Path, metrics, agents, grid, *, name: str, arena: str, advisor_data: bool = False
+) -> None:
+    """Fig. 8-style reward per step and success, moving average, mean ± std over seeds, of
+    agent type ``name`` trained in ``arena`` (``advisor_data``: draw Eq. 11's maximum)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     n_total = metrics["outcome"].shape[1]
     window = max(1, min(150, n_total // 5))
@@ -41,23 +46,31 @@ def plot_learning_curves(path: Path, metrics, agents, grid, cfg) -> None:
         members = [m for m in members if keep[m]]
         if not members:
             continue
-        label = group_label(key, grid, cfg.agent.name)
+        label = group_label(key, grid, name)
         for ax, (_, values) in zip(axes, panels, strict=True):
             curves = moving_average(values[members].astype(np.float64), window)
             mean = np.nanmean(curves, axis=0) if np.isfinite(curves).any() else curves[0]
-            std = np.nanstd(curves, axis=0) if len(members) > 1 else np.zeros_like(mean)
-            (line,) = ax.plot(episodes, mean, label=f"{label} (n={len(members)})")
-            ax.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.2)
-    if cfg.agent.advisor_data:
+            (line,) = ax.plot(episodes, mean, label=f"{label} ({seeds_text(len(members))})")
+            if len(members) >= MIN_SEEDS_FOR_INTERVAL:  # a spread of 2 seeds says little
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)  # episodes without data
+                    std = np.nanstd(curves, axis=0)
+                ax.fill_between(episodes, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+    if advisor_data:
         expected = np.nanmean(metrics["expected_max_firing_rate"][keep], axis=0)
         axes[2].plot(episodes, expected, "r--", lw=1, label="Eq. (11) expected maximum")
         axes[2].legend(fontsize=8)
     for ax, (title, _) in zip(axes, panels, strict=True):
         ax.set_xlabel("episode")
+        ax.set_ylabel(title)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_title(f"{title} (moving average, w={window})")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{cfg.agent.name} in '{cfg.arena}': mean ± std over seeds")
+    fig.suptitle(
+        f"{name} in '{arena}': mean over seeds; shaded: ± std over seeds (from "
+        f"{MIN_SEEDS_FOR_INTERVAL} seeds on)"
+    )
     save_png(fig, path)
 
 
@@ -74,7 +87,9 @@ DIAGNOSTICS = (
 )
 
 
-def plot_diagnostics(path: Path, series: Mapping[str, np.ndarray], agents, grid, cfg) -> None:
+def plot_diagnostics(
+    path: Path, series: Mapping[str, np.ndarray], agents, grid, *, name: str, arena: str
+) -> None:
     """Learner diagnostics over training: one line per grid point (mean over its seeds, thin
     lines for each seed), so a sweep's settings can be compared where they diverge."""
     import matplotlib
@@ -91,25 +106,26 @@ def plot_diagnostics(path: Path, series: Mapping[str, np.ndarray], agents, grid,
     axes = np.atleast_1d(axes).ravel()
     steps = series["step"]
     for key, members in group_agents(agents, grid).items():
-        label = group_label(key, grid, cfg.agent.name)
-        for ax, (name, _) in zip(axes, panels, strict=False):
-            values = series[name][members]
+        label = group_label(key, grid, name)
+        for ax, (metric, _) in zip(axes, panels, strict=False):
+            values = series[metric][members]
             if not np.isfinite(values).any():
                 continue
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # chunks with no value yet
                 mean = np.nanmean(values, axis=0)
-            (line,) = ax.plot(steps, mean, label=f"{label} (n={len(members)})")
+            (line,) = ax.plot(steps, mean, label=f"{label} ({seeds_text(len(members))})")
             for row in values if len(members) > 1 else ():
                 ax.plot(steps, row, color=line.get_color(), lw=0.5, alpha=0.35)
     for ax, (_, title) in zip(axes, panels, strict=False):
         ax.set_title(title)
         ax.set_xlabel("environment step")
+        ax.set_ylabel(title)
         ax.grid(alpha=0.3)
     for ax in axes[len(panels) :]:
         ax.axis("off")
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{cfg.agent.name} in '{cfg.arena}': learner diagnostics per chunk")
+    fig.suptitle(f"{name} in '{arena}': learner diagnostics per chunk")
     save_png(fig, path)
 
 

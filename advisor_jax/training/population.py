@@ -39,7 +39,10 @@ def parse_assignments(items: Sequence[str], option: str = "--hp/--grid") -> dict
         name, sep, values = item.partition("=")
         name = name.strip()
         if not sep or not values.strip():
-            raise ValueError(f"expected NAME=V1[,V2,...], got {item!r}")
+            syntax = {"--hp": "NAME=VALUE, e.g. --hp beta=0.1",
+                      "--grid": "NAME=V1,V2,..., e.g. --grid beta=0.01,0.1"}  # fmt: skip
+            raise ValueError(f"{option} expects {syntax.get(option, 'NAME=V1[,V2,...]')}, "
+                             f"got {item!r}")  # fmt: skip
         if name not in HPARAM_NAMES:
             raise ValueError(
                 f"unknown hyperparameter {name!r}; choose from {', '.join(HPARAM_NAMES)}"

@@ -25,7 +25,7 @@ import envs
 from advisor_jax.agent.hparams import rl_hparams
 from advisor_jax.agent.selector import expected_max_firing_rate
 from advisor_jax.fileio import atomic_write_bytes, atomic_write_npz
-from advisor_jax.stats import format_interval, t_interval
+from advisor_jax.stats import MIN_SEEDS_FOR_INTERVAL, format_interval, t_interval
 
 FIRING_WINDOW = 30  # w of Eq. (11), as in Fig. 10
 METRIC_NAMES = (
@@ -234,11 +234,26 @@ def read_training_log(log_path: Path, n_agents: int) -> dict[str, np.ndarray]:
     return out
 
 
+def count_text(n: int, noun: str) -> str:
+    """``"1 agent"``, ``"2 agents"``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def seeds_text(n: int) -> str:
+    return count_text(n, "seed")
+
+
 def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) -> None:
-    """Per grid point: final training success and evaluation success, mean ± 95 % CI."""
+    """Per grid point: final training success and evaluation success, the mean over seeds
+    with the half-width of its Student-t 95 % interval (none below 3 seeds), said so in the
+    table's caption."""
     agents = summary["agents"]
     evaluation = summary.get("evaluation") or {}
-    table = Table(title=f"{summary['agent']}: {len(agents)} agents")
+    table = Table(
+        title=f"{summary['agent']}: {count_text(len(agents), 'agent')}",
+        caption=f"success: mean over seeds ± half-width of the 95 % t interval (none below "
+        f"{MIN_SEEDS_FOR_INTERVAL} seeds); n: seeds used / trained",
+    )
     table.add_column("agents")
     table.add_column("n", justify="right")
     table.add_column("train success (last 10%)", justify="right")
@@ -259,6 +274,9 @@ def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) ->
 
 
 def _pct(interval) -> str:
-    """``"50.0 ± 9.1 %"`` (no interval below 3 seeds: ``stats.format_interval``)."""
+    """``"50.0 ± 9.1 %"``; below 3 seeds ``"50.0 % (n=2)"`` (``stats.format_interval``)."""
     text = format_interval(interval, scale=100)
-    return text if text == "–" else f"{text} %"
+    if text == "–":
+        return text
+    mean, sep, rest = text.partition(" (n=")
+    return f"{mean} % ({sep.strip(' (')}{rest}" if sep else f"{text} %"

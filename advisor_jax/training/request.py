@@ -50,7 +50,8 @@ def _baseline_help() -> str:
     return (
         f"Baseline static settings KEY=VALUE: {keys}; e.g. --baseline learner=td3 "
         "bc_steps=2000 or model_hidden=500,500. learner is ddpg or td3. Sweepable settings "
-        "are hyperparameters (--hp/--grid)."
+        "are hyperparameters (--hp/--grid). brax-SAC and brax-PPO take their brax settings "
+        "(docs/baselines.md), e.g. --baseline learning_rate=1e-3 hidden=128,128."
     )
 
 
@@ -69,9 +70,10 @@ class TrainArgs:
     preset: Annotated[Literal[tuple(PRESETS)], tyro.conf.arg(help=_preset_help())] = "quick"
     agent: str = "ATD3+AfDP"
     """Agent type: DDPG, ADDPG, TD3 or ATD3, optionally +AfD, +AfP or +AfDP (Table 1), or
-    a baseline (docs/baselines.md): LfD (advisor demonstrations, imitation, then DDPG) or
+    a baseline (docs/baselines.md): LfD (advisor demonstrations, imitation, then DDPG),
     MCP+MF (random data, dynamics model, MPC rounds, imitation of the MPC with DAgger, then
-    DDPG)."""
+    DDPG), or brax's own trainers brax-SAC and brax-PPO (seeds one after another, each
+    stopped at --episodes; settings via --baseline KEY=VALUE)."""
     seeds: int = 1
     """Independent seeds per grid point."""
     seed: int = 0
@@ -154,6 +156,13 @@ class TrainArgs:
     """Number of processes (hosts) in the job (implies --distributed)."""
     process_id: int | None = None
     """This process's index, 0 .. num_processes - 1 (implies --distributed)."""
+    tensorboard: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
+    """Also write every chunk's metrics (population means and each agent's) as TensorBoard
+    event files into DIR (view with: tensorboard --logdir DIR). The run directory stays the
+    record."""
+    wandb: Annotated[str | None, tyro.conf.arg(metavar="PROJECT")] = None
+    """Also log them to this Weights & Biases project (needs: pip install wandb; wandb
+    login)."""
 
 
 def build_run(args: TrainArgs):

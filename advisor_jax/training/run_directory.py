@@ -23,6 +23,12 @@ def load_run(run_dir: str | Path) -> tuple[TrainConfig, dict]:
     if not path.exists():
         raise ValueError(f"{run_dir} is not a training run (no run.json)")
     summary = read_run_json(path)
+    if summary.get("kind") == "brax":
+        raise ValueError(
+            f"{run_dir} is a {summary.get('agent')} run: brax's own networks, not advisor-jax's "
+            "actor (evaluate --policy RUN:AGENT scores it; export takes advisor-jax's agents "
+            "only)"
+        )
     try:
         return train_config_from_dict(summary["config"]), summary
     except ValueError as e:
@@ -58,6 +64,23 @@ def load_actor(run_dir: str | Path, index: int) -> tuple[TrainConfig, dict, dict
     params = load_params(run_dir, summary)
     actor = jax.tree_util.tree_map(lambda x: np.asarray(x)[index], params["actor"])
     return cfg, agents[index], actor
+
+
+def load_agent_policy(run_dir: str | Path, index: int):
+    """``(policy_apply, params)`` of agent ``index`` of a finished run: advisor-jax's actor
+    (``make_actor``), or a brax agent's policy (``agent.brax_agents.policy_apply``)."""
+    run_dir = Path(run_dir)
+    summary = read_run_json(run_dir / "run.json")
+    if summary.get("kind") != "brax":
+        from advisor_jax.agent.networks import make_actor
+
+        cfg, _, actor = load_actor(run_dir, index)
+        return make_actor(cfg.agent.actor_hidden).apply, actor
+    from advisor_jax.agent.brax_agents import policy_apply, settings_from_dict
+
+    settings = settings_from_dict(summary["agent"], summary["config"]["brax"])
+    params = load_params(run_dir, summary)
+    return policy_apply(settings), jax.tree_util.tree_map(lambda x: np.asarray(x)[index], params)
 
 
 def reevaluate(

@@ -68,8 +68,13 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
             atomic_write_json(out_dir / f"eval_episode{n}.json", at_n)
             summary.setdefault("evaluation_at_episode", {})[str(n)] = at_n
     check()
-    plots.plot_learning_curves(out_dir / "learning_curve.png", metrics, agents, grid, cfg)
-    plots.plot_diagnostics(out_dir / "diagnostics.png", series, agents, grid, cfg)
+    plots.plot_learning_curves(
+        out_dir / "learning_curve.png", metrics, agents, grid, name=cfg.agent.name,
+        arena=cfg.arena, advisor_data=cfg.agent.advisor_data,
+    )  # fmt: skip
+    plots.plot_diagnostics(
+        out_dir / "diagnostics.png", series, agents, grid, name=cfg.agent.name, arena=cfg.arena
+    )
 
     diverged = np.asarray(state.diverged)
     summary.update(

@@ -129,3 +129,25 @@ def test_a_claim_pairs_the_row_that_agrees_on_every_shared_setting(tmp_path):
     assert len(found) == 1
     assert "precision=bf16" in found[0]["worse"] and found[0]["differs"] == ["policy_delay"]
     assert found[0]["training"]["mean"] == pytest.approx(100 * (0.85 - 0.65))
+
+
+def test_every_figure_labels_its_axes(runs, tmp_path, monkeypatch):
+    """Every panel with data has an x and a y label (issue 38: plots without y labels)."""
+    import advisor_jax.analysis.report as report
+
+    figures = {}
+    real_save = report.save_png
+
+    def keep(fig, path, **kwargs):
+        figures[path.name] = fig
+        return real_save(fig, path, **kwargs)
+
+    monkeypatch.setattr(report, "save_png", keep)
+    make_report([runs], tmp_path / "report", versus_settings=["clip_q_target=1"],
+                say=lambda m: 0)  # fmt: skip
+    assert len(figures) >= 3
+    for name, fig in figures.items():
+        for ax in fig.axes:
+            if ax.get_visible() and (ax.lines or ax.collections or ax.patches):
+                assert ax.get_xlabel() or ax.get_xticklabels(), (name, ax.get_title())
+                assert ax.get_ylabel(), (name, ax.get_title())

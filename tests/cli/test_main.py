@@ -45,8 +45,15 @@ def test_cli_procedural_seed_writes_that_seeds_layout(tmp_path, capsys):
         np.testing.assert_allclose(geom.size[:2], (hx, hy), atol=1e-5)
 
 
-def test_cli_creates_missing_directories(tmp_path, capsys):
+def test_cli_arena_creates_no_directories(tmp_path, capsys):
+    """A typo in the directory is one line, and nothing is created (it used to make every
+    missing directory silently)."""
     target = tmp_path / "new" / "dir" / "arena.xml"
+    code, _, err = _run(["arena", "training", "--xml", str(target)], capsys)
+    assert code == 2 and "Traceback" not in err
+    assert f"the directory {target.parent} does not exist" in err
+    assert not (tmp_path / "new").exists()
+    target.parent.mkdir(parents=True)
     assert _run(["arena", "training", "--xml", str(target)], capsys)[0] == 0
     assert mujoco.MjModel.from_xml_path(str(target)).nsensor == 16
     assert [p.name for p in target.parent.iterdir()] == ["arena.xml"]  # no temporary left
@@ -67,7 +74,7 @@ def test_cli_unwritable_path_is_a_one_line_error(tmp_path, capsys):
     ("argv", "needle"),
     [
         (["arena", "nowhere", "--xml", "x.xml"], "unknown arena 'nowhere'"),
-        (["evaluate", "--policy", "oracle"], "unknown policy 'oracle'"),
+        (["evaluate", "--policy", "oracle"], "--policy oracle: oracle does not exist"),
         (["evaluate", "--episodes", "0"], "--episodes must be a positive integer"),
     ],
 )
@@ -90,3 +97,31 @@ def test_cli_evaluate_json(capsys):
 def test_cli_help_lists_subcommands(capsys):
     code, out, _ = _run(["--help"], capsys)
     assert code == 0 and "arena" in out and "evaluate" in out
+
+
+def test_train_help_reads_at_80_columns(capsys, monkeypatch):
+    """One paragraph per option (tyro kept the docstrings' line breaks: mid-sentence breaks
+    at 80 columns), one form per flag, a metavar for optional numbers, no empty default."""
+    from advisor_jax.cli.helptext import _field_docstrings
+    from advisor_jax.training.request import TrainArgs
+
+    monkeypatch.setenv("COLUMNS", "80")
+    code, narrow, _ = _run(["train", "--help"], capsys)
+    assert code == 0
+    for bad in ("--no-no-", "{None}", "(default: )"):
+        assert bad not in narrow, bad
+    boxed = [line for line in narrow.splitlines() if line[:1] in "│╭╰"]
+    assert boxed and max(len(line) for line in boxed) <= 80
+    monkeypatch.setenv("COLUMNS", "400")
+    wide = _run(["train", "--help"], capsys)[1].splitlines()
+    for name, doc in _field_docstrings(TrainArgs).items():
+        text = " ".join(doc.split())
+        if len(text) < 300:  # fits one line at 400 columns: it must be on one
+            assert any(text in line for line in wide), name
+
+
+def test_hp_without_a_value_answers_with_the_hp_syntax(capsys):
+    code, _, err = _run(["train", "--hp", "beta"], capsys)
+    assert code == 2 and "--hp expects NAME=VALUE, e.g. --hp beta=0.1, got 'beta'" in err
+    code, _, err = _run(["train", "--grid", "beta"], capsys)
+    assert code == 2 and "--grid expects NAME=V1,V2,..." in err

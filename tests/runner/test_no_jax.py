@@ -68,6 +68,9 @@ SCRIPT = textwrap.dedent(
     summary = loop.run_loop(ctrl, Scans(), Poses(), motor, log=log, clock=clock, sleep=clock.sleep)
     assert summary.cycles == 8 and not summary.stops, summary
     assert cli.main(["--replay", log_path]) == 0
+    from advisor_jax.cli import car  # advisor-jax-car's entry point: no JAX unless --sim
+    assert car.main(["--replay", log_path]) == 0
+    assert car.main([export_dir, "--sim"]) == 2  # one line: --sim needs the simulator
     loaded = sorted(m for m in sys.modules if m.split(".")[0] in BLOCKED)
     assert not loaded, loaded
     print("NO-JAX-OK")
@@ -87,3 +90,4 @@ def test_runner_runs_without_jax(export_dir, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "NO-JAX-OK" in proc.stdout
     assert proc.stdout.count("[dry-run] diff left=") == 8
+    assert "advisor-jax-car: error: --sim needs the simulator" in proc.stderr

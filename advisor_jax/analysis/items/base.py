@@ -16,7 +16,7 @@ from advisor_jax.analysis.runs import Point, _show
 
 ARENAS = ("training", "validation")
 BASELINES = ("LfD", "MCP+MF")
-ORDER = (*PAPER_AGENTS, *BASELINES, "TD3", "ATD3", "ATD3+AfD")
+ORDER = (*PAPER_AGENTS, *BASELINES, "brax-SAC", "brax-PPO", "TD3", "ATD3", "ATD3+AfD")
 ADVISOR_LEVEL = 0.5  # the advisor's own success (results/advisor.md): a seed below it collapsed
 PAPER_TABLE1 = {  # success %, training / validation environment (paper Table 1)
     "DDPG": (72.2, 71.3),
@@ -206,6 +206,14 @@ def interval_note(points: Sequence[Point]) -> str:
     if fewest < stats.MIN_SEEDS_FOR_INTERVAL:
         note += f" (none drawn below {stats.MIN_SEEDS_FOR_INTERVAL} seeds)"
     return note
+
+
+def episode_axis(ax, label: str = "episode") -> None:
+    """An x axis of episode counts: labelled, whole numbers only (a short run drew 1.5)."""
+    from matplotlib.ticker import MaxNLocator
+
+    ax.set_xlabel(label)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
 
 def figure(rows: int = 1, cols: int = 1, width: float = 5.0, height: float = 3.8, **kw):

@@ -28,6 +28,7 @@ from advisor_jax.analysis.items.base import (
     ARENAS,
     Item,
     cell,
+    episode_axis,
     figure,
     markdown_table,
     ordered,
@@ -305,7 +306,8 @@ def _plot(rows):
         ("actor heads saturated (share)", "critic loss / its early median", "batch-mean Q(S, A)"),
         strict=True,
     ):
-        ax.set_xlabel("training episode")
+        episode_axis(ax, "training episode")
+        ax.set_ylabel(title)
         ax.set_title(title, fontsize=9)
     axes[2].set_yscale("log")
     axes[3].set_yscale("symlog", linthresh=1.0)

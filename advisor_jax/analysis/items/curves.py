@@ -19,7 +19,14 @@ import warnings
 
 import numpy as np
 
-from advisor_jax.analysis.items.base import Item, figure, ordered, simulated, uses_advisor_data
+from advisor_jax.analysis.items.base import (
+    Item,
+    episode_axis,
+    figure,
+    ordered,
+    simulated,
+    uses_advisor_data,
+)
 from advisor_jax.analysis.runs import Point
 from advisor_jax.training.reporting import moving_average
 
@@ -76,7 +83,7 @@ def fig8(points: list[Point], context) -> Item | None:
             x, mean, lw=1.2, color=f"C{i % 10}", label=f"{p.text()} (n={len(p.seeds)})"
         )
         ax.fill_between(x, mean - sd, mean + sd, color=line.get_color(), alpha=0.15)
-    ax.set_xlabel("episode")
+    episode_axis(ax)
     ax.set_ylabel(f"reward per step (moving average, {REWARD_WINDOW} episodes)")
     ax.set_title("Fig. 8: reward per step, mean ± sd over seeds", fontsize=10)
     ax.grid(alpha=0.3)
@@ -113,7 +120,7 @@ def fig9(points: list[Point], context) -> Item | None:
         ax.plot(x, mean + sd, ls=":", lw=0.8, color=line.get_color())
         ax.plot(x, np.maximum(mean - sd, 0), ls=":", lw=0.8, color=line.get_color())
         ax.set_title(p.agent, fontsize=9)
-        ax.set_xlabel("episode")
+        episode_axis(ax)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6)
     for ax in axes[:, 0]:
@@ -154,7 +161,7 @@ def fig10(points: list[Point], context) -> Item | None:
         ax.fill_between(x, mean - sd, mean + sd, color=line.get_color(), alpha=0.15)
         ax.plot(x, expected(p), color=line.get_color(), ls="--", lw=1.0)
     ax.plot([], [], color="0.3", ls="--", label="Eq. (11): expected maximum")
-    ax.set_xlabel("episode")
+    episode_axis(ax)
     ax.set_ylabel(f"actor's firing rate (moving average, {FIRING_WINDOW} episodes)")
     ax.set_ylim(-0.03, 1.03)
     ax.set_title("Fig. 10: actor's firing rate, mean ± sd over seeds, and Eq. (11)", fontsize=10)

@@ -22,6 +22,7 @@ from advisor_jax.analysis.items.base import (
     Item,
     cell,
     comparison,
+    episode_axis,
     figure,
     interval_note,
     markdown_table,
@@ -321,7 +322,7 @@ def _plot(rows: list[dict], budgets: list[int]):
             )
     ax.plot([], [], ls=":", marker="x", color="0.3", label="paper (Table 2)")
     ax.set_xticks(budgets)
-    ax.set_xlabel("training episodes")
+    episode_axis(ax, "training episodes")
     ax.set_ylabel(f"success in the {ARENA} arena (%)")
     ax.set_ylim(-3, 103)
     ax.grid(alpha=0.3)

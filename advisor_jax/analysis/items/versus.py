@@ -192,9 +192,9 @@ def _plot_pairs(found):
         )
         ax.axhline(100 * ADVISOR_LEVEL, color="black", ls=":", lw=1)
         ax.set_title(f"{arena} arena: each seed, control → treatment", fontsize=9)
+        ax.set_ylabel("evaluation success (%)")
         ax.grid(alpha=0.3, axis="y")
         ax.legend(fontsize=7)
-    axes[0, 0].set_ylabel("evaluation success (%)")
     return fig
 
 
@@ -351,6 +351,6 @@ def _plot_afp(shown: list[Point], points: list[Point]):
             ax.grid(alpha=0.3)
             ax.set_title(f"{agent}, {n} ep, {arena} arena", fontsize=9)
             ax.set_xlabel("β")
+            ax.set_ylabel("evaluation success")
             ax.legend(fontsize=6)
-        axes[row, 0].set_ylabel("evaluation success")
     return fig
