@@ -223,6 +223,10 @@ class TrainConfig:
     """Environment steps per jitted host-loop iteration (progress, metrics, checkpoints)."""
     max_episode_steps: int = 0
     """h_max; 0 means the arena's default (300 simulation, 150 physical)."""
+    advisor: str = "rule"
+    """The advisor (docs/advisors.md): rule (the paper's Algorithm A1), a registered name,
+    MODULE:FUNCTION, a training run RUN[:AGENT] or an export directory. Its quality knobs
+    are hyperparameters (advisor_noise, advisor_random, ...)."""
     snapshot_episodes: tuple[int, ...] = ()
     """Also keep each agent's actor as it was on completing this many episodes (each < N_total)
     and evaluate it beside the final one: nothing before episode N depends on N_total, so
@@ -242,6 +246,10 @@ class TrainConfig:
         _positive("chunk_steps", self.chunk_steps)
         if self.max_episode_steps < 0:
             raise ValueError(f"max_episode_steps must be >= 0, got {self.max_episode_steps}")
+        if not isinstance(self.advisor, str) or not self.advisor.strip():
+            raise ValueError(
+                f"advisor must name an advisor (docs/advisors.md), got {self.advisor!r}"
+            )
         if self.agent.baseline is not None and self.envs_per_agent != 1:
             raise ValueError(
                 f"envs_per_agent={self.envs_per_agent} with the {self.agent.name} baseline: "
