@@ -101,6 +101,7 @@ def run_training(
     devices: int | None = None,
     eval_seed: int | None = None,
     points: Sequence[Mapping[str, float]] | None = None,
+    eval_advisor: bool = False,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
@@ -116,6 +117,8 @@ def run_training(
     one are evaluated on the same episodes, so their agents can be pooled and paired.
     ``points``: explicit grid points in place of the product of ``grid``'s values
     (``population.build_population``); ``grid`` then names the swept hyperparameters.
+    ``eval_advisor``: also evaluate each agent's advisor alone (under its quality knobs) on
+    the same episodes: eval_advisor.json (``run_outputs.evaluate_advisor``).
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -159,7 +162,7 @@ def run_training(
             eval_episodes=eval_episodes, eval_arenas=eval_arenas,
             checkpoint_every=checkpoint_every, resume=resume, progress=progress,
             console=console, meta=meta, program=program, placement=placement,
-            eval_from=eval_from,
+            eval_from=eval_from, eval_advisor=eval_advisor,
         )  # fmt: skip
         return _train_locked(plan, stop)
 
@@ -183,6 +186,7 @@ class RunPlan:
     program: tuple  # ``population_functions(cfg, placement)``
     placement: Placement
     eval_from: int  # the evaluation episodes' seed
+    eval_advisor: bool = False  # also evaluate each agent's advisor alone
 
 
 def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
@@ -236,9 +240,10 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
         "grid": {k: list(map(float, v)) for k, v in grid.items()},
         "eval_seed": eval_from,
         "agents": agents,
+        "advisor": trainer.advisor.record(),  # spec, kind, sha256 of its parameters
         "status": "running",
     }
-    identity = run_state.run_identity(summary["config"], agents)
+    identity = run_state.run_identity(summary["config"], agents, summary["advisor"])
     summary["identity"] = identity
     if trainer.phases is not None:  # a baseline: its phases, RL last (docs/baselines.md)
         summary["phases"] = trainer.phases.describe
@@ -328,7 +333,7 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
         return run_outputs.finish_run(
             out_dir, state, hp, cfg, agents, grid, dict(summary), console, trainer.phases,
             train_seconds=seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
-            eval_key=eval_key(eval_from), check=stop.check,
+            eval_key=eval_key(eval_from), check=stop.check, eval_advisor=run.eval_advisor,
         )  # fmt: skip
     except KeyboardInterrupt as e:
         where = ("after training, during the final evaluation: training is complete and "
