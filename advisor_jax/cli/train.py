@@ -44,5 +44,6 @@ def train_command(args: TrainArgs) -> None:
         meta={"preset": args.preset},
         devices=args.devices,
         eval_seed=args.eval_seed,
+        eval_advisor=args.eval_advisor,
     )
     print(f"results in {out}/ (run.json, eval.json, metrics.npz, episodes.csv, params/)")

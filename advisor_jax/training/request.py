@@ -97,6 +97,10 @@ class TrainArgs:
     """Gradient updates per environment step (default 1)."""
     max_episode_steps: int | None = None
     """h_max override (default: the arena's, 300 or 150 for physical)."""
+    advisor: str | None = None
+    """The advisor (docs/advisors.md): rule (the paper's Algorithm A1, the default), a
+    registered name, MODULE:FUNCTION, a training run RUN[:AGENT] or an export directory.
+    Its quality knobs are hyperparameters: --grid advisor_random=0,0.2,0.4."""
     precision: Literal["fp32", "bf16"] = "fp32"
     """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
     activations with fp32 parameters, Adam and accumulation (faster on GPUs with bf16
@@ -124,6 +128,9 @@ class TrainArgs:
     --episodes), on the same episodes, into eval_episode<N>.json: e.g. --episodes 500
     --snapshot-episodes 200 answers for 200 episodes too (the same actor a 200-episode run
     ends with)."""
+    eval_advisor: bool = False
+    """Also evaluate each agent's advisor alone (under its quality knobs) on the same
+    evaluation episodes: eval_advisor.json."""
     eval_arenas: tuple[str, ...] | None = None
     """Evaluation arenas (default: training and validation; physical for the physical preset)."""
     eval_seed: int | None = None
@@ -187,11 +194,15 @@ def build_run(args: TrainArgs):
     train_overrides = {
         name: getattr(args, name)
         for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",
-                     "max_episode_steps", "chunk_steps", "snapshot_episodes")
+                     "max_episode_steps", "chunk_steps", "snapshot_episodes", "advisor")
         if getattr(args, name) is not None
     }  # fmt: skip
     cfg = dataclasses.replace(cfg, **train_overrides)
     check_episodes(cfg.episodes)
+    if cfg.advisor != "rule":  # an unknown one fails here, before anything is written
+        from advisor_jax.training.advisor_source import resolve_advisor
+
+        resolve_advisor(cfg.advisor, _arena(cfg), check=False)
     overrides = parse_assignments(args.hp, "--hp")
     for name, values in overrides.items():
         if len(values) != 1:
@@ -217,3 +228,11 @@ def build_run(args: TrainArgs):
         ("physical",) if cfg.arena == "physical" else ("training", "validation")
     )
     return cfg, base_hp, grid, seeds, tuple(arenas)
+
+
+def _arena(cfg):
+    import envs
+
+    if cfg.arena not in envs.ARENAS:
+        raise ValueError(f"unknown arena {cfg.arena!r}; choose from {', '.join(envs.ARENAS)}")
+    return envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)
