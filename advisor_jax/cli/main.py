@@ -78,19 +78,28 @@ def evaluate(
     episodes: int = 500,
     seed: int = 0,
     json: bool = False,
+    advisor: str = "rule",
+    hp: tuple[str, ...] = (),
 ) -> dict:
-    """Evaluate a policy deterministically (no exploration noise) over many episodes at once.
+    """Evaluate a policy (no exploration noise) over many episodes at once.
 
     Runs all episodes as parallel environments (each one's first episode counts) and
     prints the success, collision and timeout rates and the mean collision speed.
 
     Args:
-      policy: advisor (the paper's rule-based advisor, Alg. A1), a training run directory
-        RUN[:AGENT] (agent index, default 0) or an export directory.
+      policy: advisor (the advisor of --advisor as the trainer consults it, under the
+        quality knobs of --hp), a training run directory RUN[:AGENT] (agent index,
+        default 0) or an export directory.
       arena: Arena: training, validation, physical or procedural.
       episodes: Number of test episodes (the paper uses 500 for the advisor).
-      seed: Seed of the episodes' starts, goals (and procedural layouts).
+      seed: Seed of the episodes' starts, goals (and procedural layouts), and of a noisy
+        advisor's draws.
       json: Print one JSON object instead of a table.
+      advisor: With --policy advisor: rule (the paper's Alg. A1), a registered name,
+        MODULE:FUNCTION, RUN[:AGENT] or an export directory (docs/advisors.md).
+      hp: With --policy advisor: its quality knobs NAME=VALUE, e.g. advisor_noise=0.2
+        advisor_delay=3 (advisor_noise, advisor_random, advisor_blind, advisor_range,
+        advisor_delay; advisor-jax train --help explains them).
     """
     import jax
 
@@ -103,19 +112,51 @@ def evaluate(
     from advisor_jax.training.population import seed_key
 
     key = seed_key(seed)  # before compiling: a bad --seed fails fast
-
-    apply, params = resolve_policy(policy, env)
+    quality = _quality(hp, policy, advisor)
+    apply, params = resolve_policy(policy, env, advisor, quality)
     evaluate_fn = jax.jit(make_evaluate(env, apply, episodes))
     status = Console(stderr=True)
     with status.status(f"compiling and running {episodes} episodes of {arena} (h_max = "
                        f"{env.max_episode_steps}) ..."):  # fmt: skip
         metrics = jax.block_until_ready(evaluate_fn(params, key))
     result = {"policy": policy, "arena": arena, "seed": seed, **summary(metrics)}
+    if policy == "advisor":
+        from advisor_jax.agent.settings import flat_items
+        from advisor_jax.training.advisor_source import resolve_advisor
+
+        result["advisor"] = resolve_advisor(advisor, env, check=False).record()
+        result["quality"] = {k: float(v) for k, v in flat_items(params).items()}
     if json:
         print(jsonlib.dumps(result))
     else:
         _print_table(result)
     return result
+
+
+def _quality(hp: Sequence[str], policy: str, advisor: str):
+    """The advisor's quality knobs from --hp (only with --policy advisor)."""
+    if policy != "advisor":
+        if hp or advisor != "rule":
+            raise ValueError(
+                "--advisor and --hp choose the advisor: use them with --policy advisor"
+            )
+        return None
+    from advisor_jax.agent.advisor_quality import AdvisorQuality
+    from advisor_jax.agent.settings import flat_fields, replace_flat, validate
+    from advisor_jax.training.population import parse_assignments
+
+    values = parse_assignments(hp, "--hp")
+    knobs = flat_fields(AdvisorQuality())
+    for name, given in values.items():
+        if name not in knobs:
+            raise ValueError(
+                f"--hp {name}: not an advisor quality knob; choose from {', '.join(knobs)}"
+            )
+        if len(given) != 1:
+            raise ValueError(f"--hp {name} takes one value")
+    quality = replace_flat(AdvisorQuality(), **{k: v[0] for k, v in values.items()})
+    validate(quality)
+    return quality
 
 
 def _print_table(result: dict) -> None:
