@@ -4,7 +4,8 @@
     points = pool(runs)                                           # one Point per setting
 
 A **run** is a directory that ``advisor-jax train`` (or ``advisor-jax sweep``) wrote:
-run.json, eval.json (its agents on the episodes of its evaluation seed),
+run.json, eval.json (its agents on the episodes of its evaluation seed), eval_advisor.json
+(each agent's advisor alone on the same episodes, ``--eval-advisor``),
 eval_episode<N>.json (its actors kept at episode N, ``--snapshot-episodes``),
 eval_seed<S>.json (re-evaluated on seed S's episodes, ``experiments/reevaluate.py``) and
 metrics.npz (per agent × episode; ``compact`` keeps it small). Unfinished runs are left out
@@ -45,7 +46,7 @@ AGENT_FIELDS = (
     "precision",
     "baseline",
 )
-TRAIN_FIELDS = ("arena", "envs_per_agent", "updates_per_step", "max_episode_steps")
+TRAIN_FIELDS = ("arena", "envs_per_agent", "updates_per_step", "max_episode_steps", "advisor")
 EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
 
 
@@ -57,6 +58,7 @@ class Run:
     evaluation: dict  # {arena: {"success": [agents], ..., "episodes": n}}
     snapshots: dict  # {N: evaluation} of the actors kept at episode N (own eval seed only)
     command: str | None
+    advisor_evaluation: dict = dataclasses.field(default_factory=dict)  # own eval seed only
 
     @property
     def agent(self) -> str:
@@ -172,6 +174,7 @@ def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:
                     evaluations[chosen],
                     snapshots if own else {},
                     _command(path, summary),
+                    (summary.get("advisor_evaluation") or {}) if own else {},
                 )
             )
             if not own and summary.get("evaluation_at_episode"):
@@ -267,6 +270,7 @@ class Seed:
     budget: int
     snapshot: bool  # a kept actor of a longer run
     evaluation: dict  # {arena: {"success": x, ...}} (None: diverged)
+    advisor: dict = dataclasses.field(default_factory=dict)  # its advisor alone, same keys
 
     def episodes(self, name: str) -> np.ndarray | None:
         """Per-episode metric ``name`` over this agent's first ``budget`` episodes."""
@@ -348,7 +352,11 @@ def pool(runset: RunSet) -> tuple[list[Point], list[str]]:
                     a: {k: (ev[k][i] if k in ev else None) for k in EVAL_KEYS}
                     for a, ev in evaluation.items()
                 }
-                point.seeds[seed] = Seed(seed, run, i, budget, snapshot, picked)
+                advised = {
+                    a: {k: ev[k][i] for k in EVAL_KEYS if k in ev}
+                    for a, ev in run.advisor_evaluation.items()
+                }
+                point.seeds[seed] = Seed(seed, run, i, budget, snapshot, picked, advised)
     for point in points.values():
         point.seeds = dict(sorted(point.seeds.items()))
     return list(points.values()), notes
