@@ -47,6 +47,8 @@ class Args:
     """The study's eval_seed: the advisors are scored on its agents' evaluation episodes."""
     out: str = "results/advisor_quality_advisors"
     """Output path without extension (.json and .md)."""
+    notes: tuple[str, ...] = ()
+    """Lines for the report (where an advisor came from)."""
 
 
 def parse_setting(text: str) -> AdvisorQuality:
@@ -104,6 +106,7 @@ def main(args: Args) -> dict:
         "command": writing.command_line("experiments/advisor_quality_levels.py", sys.argv[1:]),
         "eval_seed": args.eval_seed,
         "episodes": args.episodes,
+        "notes": list(args.notes),
         "rows": rows,
     }
     atomic_write_json(f"{args.out}.json", result)
@@ -134,6 +137,7 @@ def markdown(result: dict, args: Args) -> list[str]:
         f"of eval seed {args.eval_seed} (those every agent of a study with that eval_seed "
         "is scored on); each advisor alone through the trainer's interface "
         "(docs/advisors.md), deterministic apart from its knobs' own draws",
+        *(f"- {note}" for note in args.notes),
         "",
         *writing.markdown_table(header, table, align="llr"),
     ]
