@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from advisor_jax.agent.settings import hparam
+from advisor_jax.agent.settings import flat_items, hparam
 from advisor_jax.contract import spec
 
 MAX_DELAY = 10
@@ -132,6 +132,13 @@ def make_acting(apply: Callable, params: Any) -> Acting:
         return action, AdvisorMemory(past=past, started=jnp.ones_like(memory.started))
 
     return act
+
+
+def changed_knobs(knobs: dict) -> list[str]:
+    """``["advisor_random=0.3"]``: the knobs of ``knobs`` ({flat name: value}) that differ
+    from their defaults, for labels."""
+    defaults = {k: float(v) for k, v in flat_items(AdvisorQuality()).items()}
+    return [f"{k}={float(v):g}" for k, v in knobs.items() if k in defaults and v != defaults[k]]
 
 
 def advisor_key(key: jax.Array) -> jax.Array:

@@ -20,7 +20,7 @@ from pathlib import PurePath
 import numpy as np
 
 from advisor_jax import stats
-from advisor_jax.agent.advisor_quality import AdvisorQuality
+from advisor_jax.agent.advisor_quality import AdvisorQuality, changed_knobs
 from advisor_jax.agent.hparams import PRIOR_HPARAMS
 from advisor_jax.agent.settings import flat_fields, flat_items
 from advisor_jax.analysis.items.base import (
@@ -42,7 +42,6 @@ from advisor_jax.analysis.runs import Point
 CONTROL = {"ADDPG+AfD": "ADDPG", "ADDPG+AfP": "ADDPG", "ADDPG+AfDP": "ADDPG",
            "ATD3+AfD": "ATD3", "ATD3+AfDP": "ATD3", "LfD": "DDPG"}  # fmt: skip
 KNOBS = tuple(flat_items(AdvisorQuality()))
-DEFAULT_KNOBS = flat_items(AdvisorQuality())
 ADVISOR_SETTINGS = ("advisor", *KNOBS)
 # What a control may differ in from the agent type it is the control of.
 NOT_COMPARED = (
@@ -65,8 +64,7 @@ def advisor_label(point: Point) -> str:
     """``rule``, ``atd3_quick_300ep, advisor_random=0.2`` (the spec's last path part)."""
     spec = str(point.settings["advisor"])
     name = spec if ":" in spec and "/" not in spec else PurePath(spec).name or spec
-    knobs = [f"{k}={point.settings[k]:g}" for k in KNOBS if point.settings[k] != DEFAULT_KNOBS[k]]
-    return ", ".join([name, *knobs])
+    return ", ".join([name, *changed_knobs({k: point.settings[k] for k in KNOBS})])
 
 
 def _series_key(point: Point) -> tuple:
