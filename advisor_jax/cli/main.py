@@ -160,7 +160,14 @@ def _quality(hp: Sequence[str], policy: str, advisor: str):
 
 
 def _print_table(result: dict) -> None:
-    table = Table(title=f"{result['policy']} in {result['arena']} ({result['episodes']} episodes)")
+    name = result["policy"]
+    if "advisor" in result:
+        from advisor_jax.agent.advisor_quality import changed_knobs
+
+        name = ", ".join(
+            [f"advisor {result['advisor']['spec']}", *changed_knobs(result["quality"])]
+        )
+    table = Table(title=f"{name} in {result['arena']} ({result['episodes']} episodes)")
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in ("success_rate", "collision_rate", "timeout_rate"):
