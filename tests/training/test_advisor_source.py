@@ -38,8 +38,9 @@ def test_the_default_trains_as_the_bare_rule_bit_for_bit(population, monkeypatch
     memory carried) leaves every agent's training exactly as the rule called directly: the
     knobs' arithmetic is exact identities at zero. Both programs compile on this CPU in this
     process; the one thing that could tell them apart is XLA lowering the rule's dot product
-    differently beside the knobs' operations (it does not on the CPUs this ran on; main's
-    reference runs reproduce byte for byte too, /work/baseline_ref in issue 40)."""
+    differently beside the knobs' operations (it does not on the CPU this was written on,
+    where the reference runs of the commit before plug-in advisors reproduce byte for
+    byte)."""
     import advisor_jax.training.train as train_module
 
     monkeypatch.setattr(train_module, "make_acting", _bare_acting)
