@@ -229,6 +229,10 @@ class TrainConfig:
     (V, ω) take effect at once) or mjx (the P3DX's body and wheels stepped by MJX, with
     acceleration, turn and speed limits), optionally with parameters, e.g.
     mjx:wheel_torque_max=0.5 (envs/motion.py, docs/arena_calibration.md)."""
+    advisor: str = "rule"
+    """The advisor (docs/advisors.md): rule (the paper's Algorithm A1), a registered name,
+    MODULE:FUNCTION, a training run RUN[:AGENT] or an export directory. Its quality knobs
+    are hyperparameters (advisor_noise, advisor_random, ...)."""
     snapshot_episodes: tuple[int, ...] = ()
     """Also keep each agent's actor as it was on completing this many episodes (each < N_total)
     and evaluate it beside the final one: nothing before episode N depends on N_total, so
@@ -254,6 +258,10 @@ class TrainConfig:
         _positive("chunk_steps", self.chunk_steps)
         if self.max_episode_steps < 0:
             raise ValueError(f"max_episode_steps must be >= 0, got {self.max_episode_steps}")
+        if not isinstance(self.advisor, str) or not self.advisor.strip():
+            raise ValueError(
+                f"advisor must name an advisor (docs/advisors.md), got {self.advisor!r}"
+            )
         if self.agent.baseline is not None and self.envs_per_agent != 1:
             raise ValueError(
                 f"envs_per_agent={self.envs_per_agent} with the {self.agent.name} baseline: "

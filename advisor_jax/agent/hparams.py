@@ -29,6 +29,7 @@ from typing import Any
 
 from flax import struct
 
+from advisor_jax.agent.advisor_quality import AdvisorQuality
 from advisor_jax.agent.settings import flat_fields, flat_items, hparam
 
 INF = math.inf
@@ -86,6 +87,8 @@ class HParams:
         "(envs.reward.return_bounds), against the single critic's overestimation runaway",
         low=0.0, high=1.0, high_closed=True, switch=True, presets={"stable": 1.0},
     )  # fmt: skip
+    quality: AdvisorQuality = struct.field(pytree_node=True, default_factory=AdvisorQuality)
+    """The advisor's quality knobs (``advisor_quality.py``): named flat, ``advisor_noise``."""
 
 
 def _episodes(default: float, help: str, physical: float, quick: float):

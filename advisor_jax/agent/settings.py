@@ -45,6 +45,7 @@ class Spec:
     high_closed: bool = False  # high itself allowed
     switch: bool = False  # 0 or 1 only
     count: bool = False  # an episode count: a whole number
+    whole: bool = False  # only whole numbers (checked)
     freezes: bool = False  # multiplied by 0 once the agent has finished
     only: tuple[str, ...] = ()  # the baseline kinds that read a static setting (empty: all)
 
@@ -53,7 +54,8 @@ class Spec:
         if self.switch:
             return "0 or 1"
         lo, hi = ("[" if self.low_closed else "("), ("]" if self.high_closed else ")")
-        return f"{lo}{self.low:g}, {self.high:g}{hi}"
+        text = f"{lo}{self.low:g}, {self.high:g}{hi}"
+        return f"whole numbers in {text}" if self.whole else text
 
     def allows(self, values: np.ndarray) -> np.ndarray:
         """Elementwise: in the range (a positive infinity where the range is open above)."""
@@ -62,6 +64,8 @@ class Spec:
         ok &= (values <= self.high) if self.high_closed else (values < self.high)
         if self.switch:
             ok &= (values == 0.0) | (values == 1.0)
+        if self.whole:
+            ok &= np.floor(values) == values
         return ok
 
 
@@ -75,7 +79,7 @@ def _check_presets(presets: Mapping[str, Any] | None) -> dict:
 def hparam(default: float, help: str, *, presets: Mapping[str, float] | None = None, **spec):
     """A sweepable hyperparameter: a field of a ``flax.struct`` dataclass (a pytree leaf).
     ``spec``: ``Spec``'s range and flags (``low``, ``high``, ``low_closed``, ``high_closed``,
-    ``switch``, ``count``, ``freezes``)."""
+    ``switch``, ``count``, ``whole``, ``freezes``)."""
     meta = Spec(help=help, presets=_check_presets(presets), sweepable=True, **spec)
     return struct.field(pytree_node=True, default=default, metadata={"spec": meta})
 
@@ -197,15 +201,21 @@ def validate(hp: Any) -> None:
             bad = int(np.flatnonzero(~ok)[0])
             where = f" (agent {bad})" if values.size > 1 else ""
             allowed = "is a switch: 0 or 1" if spec.switch else f"is outside {spec.interval()}"
+            if spec.whole:
+                allowed = f"is not one of the {spec.interval()}"
             raise ValueError(f"hyperparameter {name}={values[bad]:g}{where} {allowed}")
 
 
 def describe(cls: type) -> list[str]:
     """One line per declared hyperparameter of ``cls``: name, default, the presets that
-    differ, range, and whether it freezes (``--help``)."""
+    differ, range, and whether it freezes (``--help``); a nested struct's too."""
     lines = []
     for f in dataclasses.fields(cls):
         spec = spec_of(f)
+        nested = f.default_factory
+        if spec is None and isinstance(nested, type) and dataclasses.is_dataclass(nested):
+            lines += describe(nested)
+            continue
         if spec is None or not spec.sweepable:
             continue
         presets = ", ".join(f"{p} {v:g}" for p, v in spec.presets.items())

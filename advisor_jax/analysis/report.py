@@ -10,7 +10,8 @@ their devices and dates, the commands that trained them and the one that drew it
 Items: table1, table2 (Tables 2-3), fig6, fig7, fig8, fig9, fig10, fig11, eps (success over
 the ε schedule), afp (the advisor in policy updating against its control, by β), versus
 (settings compared seed by seed: ``--versus NAME[=VALUE]``), collapse (seeds below the
-advisor and the learner's diagnostics).
+advisor and the learner's diagnostics), advisor_quality (each agent's success against its
+advisor's own, from runs trained with ``--eval-advisor``).
 """
 
 from __future__ import annotations
@@ -22,7 +23,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from advisor_jax import __version__
-from advisor_jax.analysis.items import collapse, curves, sweeps, table1, table2, versus
+from advisor_jax.analysis.items import (
+    advisor_quality,
+    collapse,
+    curves,
+    sweeps,
+    table1,
+    table2,
+    versus,
+)
 from advisor_jax.analysis.items.base import Item
 from advisor_jax.analysis.runs import load_runs, pool
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
@@ -43,6 +52,7 @@ ITEMS = {
     "afp": versus.afp,
     "versus": versus.versus,
     "collapse": collapse.collapse,
+    "advisor_quality": advisor_quality.advisor_quality,
 }
 
 

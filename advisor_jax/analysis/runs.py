@@ -4,7 +4,8 @@
     points = pool(runs)                                           # one Point per setting
 
 A **run** is a directory that ``advisor-jax train`` (or ``advisor-jax sweep``) wrote:
-run.json, eval.json (its agents on the episodes of its evaluation seed),
+run.json, eval.json (its agents on the episodes of its evaluation seed), eval_advisor.json
+(each agent's advisor alone on the same episodes, ``--eval-advisor``),
 eval_episode<N>.json (its actors kept at episode N, ``--snapshot-episodes``),
 eval_seed<S>.json (re-evaluated on seed S's episodes, ``experiments/reevaluate.py``) and
 metrics.npz (per agent × episode; ``compact`` keeps it small). Unfinished runs are left out
@@ -23,30 +24,14 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from advisor_jax.agent.brax_agents import brax_agent_name, default_settings
-from advisor_jax.agent.config import HPARAM_NAMES, AgentConfig, TrainConfig, preset
-from advisor_jax.agent.hparams import HPARAM_DEFAULTS
-from advisor_jax.agent.settings import flat_items
+from advisor_jax.analysis.point_settings import preset_differences, settings_of
 
-AGENT_FIELDS = (
-    "actor_hidden",
-    "critic_state_hidden",
-    "critic_hidden",
-    "buffer_size",
-    "batch_size",
-    "policy_delay",
-    "learning_starts",
-    "precision",
-    "baseline",
-)
-TRAIN_FIELDS = ("arena", "envs_per_agent", "updates_per_step", "max_episode_steps", "motion")
 EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
 
 
@@ -58,6 +43,7 @@ class Run:
     evaluation: dict  # {arena: {"success": [agents], ..., "episodes": n}}
     snapshots: dict  # {N: evaluation} of the actors kept at episode N (own eval seed only)
     command: str | None
+    advisor_evaluation: dict = dataclasses.field(default_factory=dict)  # own eval seed only
 
     @property
     def agent(self) -> str:
@@ -209,6 +195,7 @@ def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:
                     evaluations[chosen],
                     snapshots if own else {},
                     _command(path, summary),
+                    (summary.get("advisor_evaluation") or {}) if own else {},
                 )
             )
             if not own and summary.get("evaluation_at_episode"):
@@ -251,72 +238,6 @@ def _shared_seed(members, arena: str) -> int:
 # -- points ---------------------------------------------------------------------------------
 
 
-def _setting(value):
-    if isinstance(value, list):
-        return tuple(_setting(v) for v in value)
-    if isinstance(value, dict):
-        return tuple(sorted((k, _setting(v)) for k, v in value.items()))
-    if isinstance(value, float):
-        return float(f"{value:.9g}")
-    return value
-
-
-def settings_of(summary: dict, row: dict) -> dict:
-    """Everything that changes what one agent learns: every hyperparameter (a field an older
-    run.json lacks: ``HParams``'s default, what that run trained with) and static setting;
-    for a brax agent, its brax settings (``gamma`` = its discounting), arena and h_max."""
-    config = summary["config"]
-    if summary.get("kind") == "brax":
-        brax = {k: _setting(v) for k, v in config["brax"].items()}
-        return {**brax, "gamma": brax["discounting"], **_brax_task(config)}
-    agent_defaults, train_defaults = AgentConfig(), TrainConfig()
-    out = {n: _setting(float(row.get(n, HPARAM_DEFAULTS[n]))) for n in HPARAM_NAMES}
-    for field in AGENT_FIELDS:
-        out[field] = _setting(config["agent"].get(field, getattr(agent_defaults, field)))
-    for field in TRAIN_FIELDS:
-        out[field] = _setting(config.get(field, getattr(train_defaults, field)))
-    return out
-
-
-def _brax_task(config: dict) -> dict:
-    return {
-        "arena": config.get("arena", "training"),
-        "max_episode_steps": config.get("max_episode_steps", 0),
-    }
-
-
-def _brax_differences(preset_name: str, agent: str, settings: dict) -> dict:
-    static, _ = preset(preset_name, "DDPG")
-    brax = default_settings(agent, preset_name)
-    default = {k: _setting(v) for k, v in dataclasses.asdict(brax).items()}
-    default |= {"gamma": default["discounting"], **_brax_task(dataclasses.asdict(static))}
-    return {k: v for k, v in settings.items() if default.get(k) != v}
-
-
-def preset_differences(preset_name: str, agent: str, settings: dict) -> dict:
-    """The settings in which an agent differs from ``preset_name``'s for its type."""
-    if brax_agent_name(agent) is not None:
-        return _brax_differences(preset_name, agent, settings)
-    static, hp = preset(preset_name, agent)
-    hp_values = {**HPARAM_DEFAULTS, **flat_items(hp)}
-    out = {}
-    for name, value in settings.items():
-        if name in HPARAM_NAMES:
-            default = float(hp_values[name])
-        elif name in AGENT_FIELDS:
-            default = _setting(dataclasses.asdict(static.agent)[name])
-        else:
-            default = _setting(getattr(static, name))
-        same = (
-            math.isclose(value, default, rel_tol=1e-6)
-            if isinstance(value, float)
-            else value == default
-        )
-        if not same:
-            out[name] = value
-    return out
-
-
 @dataclasses.dataclass
 class Seed:
     seed: int
@@ -325,6 +246,7 @@ class Seed:
     budget: int
     snapshot: bool  # a kept actor of a longer run
     evaluation: dict  # {arena: {"success": x, ...}} (None: diverged)
+    advisor: dict = dataclasses.field(default_factory=dict)  # its advisor alone, same keys
 
     def episodes(self, name: str) -> np.ndarray | None:
         """Per-episode metric ``name`` over this agent's first ``budget`` episodes."""
@@ -406,7 +328,11 @@ def pool(runset: RunSet) -> tuple[list[Point], list[str]]:
                     a: {k: (ev[k][i] if k in ev else None) for k in EVAL_KEYS}
                     for a, ev in evaluation.items()
                 }
-                point.seeds[seed] = Seed(seed, run, i, budget, snapshot, picked)
+                advised = {
+                    a: {k: ev[k][i] for k in EVAL_KEYS if k in ev}
+                    for a, ev in run.advisor_evaluation.items()
+                }
+                point.seeds[seed] = Seed(seed, run, i, budget, snapshot, picked, advised)
     for point in points.values():
         point.seeds = dict(sorted(point.seeds.items()))
     return list(points.values()), notes

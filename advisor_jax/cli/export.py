@@ -56,7 +56,7 @@ def export_command(args: ExportArgs) -> dict:
     from advisor_jax.runner.signature import read_key
     from advisor_jax.training.limits import check_eval_episodes
     from advisor_jax.training.population import seed_key
-    from advisor_jax.training.run_directory import load_actor
+    from advisor_jax.training.run_directory import load_actor, load_run
 
     if args.golden_envs <= 0 or args.golden_steps <= 0:
         raise ValueError("--golden-envs and --golden-steps must be positive")
@@ -66,7 +66,8 @@ def export_command(args: ExportArgs) -> dict:
     check_new_export_dir(args.out)  # before any work
     sign_key = None if args.sign_key is None else read_key(args.sign_key, "--sign-key")
     key = seed_key(args.seed)
-    cfg, row, actor = load_actor(args.source, args.agent)
+    cfg, row, actor = load_actor(args.source, args.agent)  # run.json checked, its advisor too
+    advisor = load_run(args.source)[1].get("advisor")  # None: a run of an older version
     env = envs.make_env(cfg.arena, motion=cfg.motion, max_episode_steps=cfg.max_episode_steps)
     policy_apply = make_actor(cfg.agent.actor_hidden).apply
     obs = rollout_observations(env, policy_apply, actor, key, args.golden_envs, args.golden_steps)
@@ -77,6 +78,7 @@ def export_command(args: ExportArgs) -> dict:
         "seed": row["seed"],
         "hparams": {k: row[k] for k in HPARAM_NAMES if k in row},  # older runs lack newer ones
         "train_config": dataclasses.asdict(cfg),
+        "advisor": advisor,  # the advisor it was trained with (docs/advisors.md)
     }
     meta = export_policy(
         actor,

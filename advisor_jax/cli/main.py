@@ -86,8 +86,10 @@ def evaluate(
     eval_seed: int | None = None,
     json: bool = False,
     motion: str | None = None,
+    advisor: str = "rule",
+    hp: tuple[str, ...] = (),
 ) -> dict:
-    """Evaluate a policy deterministically (no exploration noise) over many episodes at once.
+    """Evaluate a policy (no exploration noise) over many episodes at once.
 
     Runs all episodes as parallel environments (each one's first episode counts) and
     prints the success, collision and timeout rates and the mean collision speed. A run's
@@ -95,20 +97,25 @@ def evaluate(
     numbers repeat the run's.
 
     Args:
-      policy: advisor (the paper's rule-based advisor, Alg. A1), a training run directory
-        RUN[:AGENT] (agent index, default 0; brax-SAC and brax-PPO runs too) or an export
-        directory.
+      policy: advisor (the advisor of --advisor as the trainer consults it, under the
+        quality knobs of --hp), a training run directory RUN[:AGENT] (agent index,
+        default 0; brax-SAC and brax-PPO runs too) or an export directory.
       arena: Arena: training, validation, physical or procedural.
       episodes: Number of test episodes (default: for a run, as many as its eval.json
         holds for this arena; otherwise 500, the paper's count for the advisor).
-      seed: Seed of the episodes' starts, goals (and procedural layouts) (default 0; not
-        the key of a run's evaluation: see --eval-seed).
+      seed: Seed of the episodes' starts, goals (and procedural layouts), and of a noisy
+        advisor's draws (default 0; not the key of a run's evaluation: see --eval-seed).
       eval_seed: Score on the episodes that train --eval-seed S scores its agents on
         (default for a run: its own, the episodes of its eval.json).
       json: Print one JSON object instead of a table.
       motion: Motion model: kinematic, mjx or mjx:KEY=VALUE,... Default: the model the
         policy was trained with (a run's or an export's), kinematic for the advisor; another
         one evaluates the policy out of its training conditions, with a warning.
+      advisor: With --policy advisor: rule (the paper's Alg. A1), a registered name,
+        MODULE:FUNCTION, RUN[:AGENT] or an export directory (docs/advisors.md).
+      hp: With --policy advisor: its quality knobs NAME=VALUE, e.g. advisor_noise=0.2
+        advisor_delay=3 (advisor_noise, advisor_random, advisor_blind, advisor_range,
+        advisor_delay; advisor-jax train --help explains them).
     """
     import jax
 
@@ -118,6 +125,7 @@ def evaluate(
 
     if seed is not None and eval_seed is not None:
         raise ValueError("give --seed or --eval-seed, not both")
+    quality = _quality(hp, policy, advisor)
     run = parse_policy(policy)
     run = run if isinstance(run, RunSpec) else None
     if episodes is None:
@@ -142,7 +150,7 @@ def evaluate(
             )  # fmt: skip
     from advisor_jax.evaluation.evaluate import make_evaluate, summary
 
-    apply, params = resolve_policy(policy, env)
+    apply, params = resolve_policy(policy, env, advisor, quality)
     evaluate_fn = jax.jit(make_evaluate(env, apply, episodes))
     status = Console(stderr=True)
     if run is not None and eval_seed == run.eval_seed and episodes == run.eval_episodes.get(arena):
@@ -155,6 +163,12 @@ def evaluate(
     which = {"eval_seed": eval_seed} if eval_seed is not None else {"seed": seed or 0}
     result = {"policy": policy, "arena": arena, "motion": env.config.motion_setting, **which,
               **summary(metrics)}  # fmt: skip
+    if policy == "advisor":
+        from advisor_jax.agent.settings import flat_items
+        from advisor_jax.training.advisor_source import resolve_advisor
+
+        result["advisor"] = resolve_advisor(advisor, env, check=False).record()
+        result["quality"] = {k: float(v) for k, v in flat_items(params).items()}
     if json:
         print(jsonlib.dumps(result))
     else:
@@ -162,8 +176,41 @@ def evaluate(
     return result
 
 
+def _quality(hp: Sequence[str], policy: str, advisor: str):
+    """The advisor's quality knobs from --hp (only with --policy advisor)."""
+    if policy != "advisor":
+        if hp or advisor != "rule":
+            raise ValueError(
+                "--advisor and --hp choose the advisor: use them with --policy advisor"
+            )
+        return None
+    from advisor_jax.agent.advisor_quality import AdvisorQuality
+    from advisor_jax.agent.settings import flat_fields, replace_flat, validate
+    from advisor_jax.training.population import parse_assignments
+
+    values = parse_assignments(hp, "--hp")
+    knobs = flat_fields(AdvisorQuality())
+    for name, given in values.items():
+        if name not in knobs:
+            raise ValueError(
+                f"--hp {name}: not an advisor quality knob; choose from {', '.join(knobs)}"
+            )
+        if len(given) != 1:
+            raise ValueError(f"--hp {name} takes one value")
+    quality = replace_flat(AdvisorQuality(), **{k: v[0] for k, v in values.items()})
+    validate(quality)
+    return quality
+
+
 def _print_table(result: dict) -> None:
-    table = Table(title=f"{result['policy']} in {result['arena']} ({result['episodes']} episodes)")
+    name = result["policy"]
+    if "advisor" in result:
+        from advisor_jax.agent.advisor_quality import changed_knobs
+
+        name = ", ".join(
+            [f"advisor {result['advisor']['spec']}", *changed_knobs(result["quality"])]
+        )
+    table = Table(title=f"{name} in {result['arena']} ({result['episodes']} episodes)")
     table.add_column("metric")
     table.add_column("value", justify="right")
     for key in ("success_rate", "collision_rate", "timeout_rate"):

@@ -7,7 +7,6 @@ range", a path that is not there "does not exist".
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -85,35 +84,29 @@ def parse_policy(policy: str) -> RunSpec | Path | None:
     )
 
 
-def resolve_policy(policy: str, env) -> tuple[Callable[[Any, Any], Any], Any]:
-    """``(policy_apply, params)`` for a policy spec; ``policy_apply(params, obs) -> action``.
+def resolve_policy(policy: str, env, advisor: str = "rule", quality=None) -> tuple[Any, Any]:
+    """``(policy, params)`` for a policy spec, ``policy`` a ``PolicyApply`` or the advisor's
+    ``StatefulPolicy`` (``evaluation.evaluate``), both for ``make_evaluate``.
 
-    Specs: ``advisor`` (Algorithm A1 with the arena's T_o); ``RUN_DIR[:AGENT]``, the final
-    policy of agent AGENT (default 0) of a training run (a brax agent's too);
-    ``EXPORT_DIR``, an exported policy (verified like the car runner does).
+    Specs: ``advisor``, the advisor ``advisor`` (``training/advisor_source``; default the
+    paper's Algorithm A1 with the arena's T_o) under its quality knobs ``quality`` (an
+    ``AdvisorQuality``; None: as it is); ``RUN_DIR[:AGENT]``, the final policy of agent AGENT
+    (default 0) of a training run (a brax agent's too); ``EXPORT_DIR``, an exported policy
+    (verified like the car runner does).
     """
     spec = parse_policy(policy)
     if spec is None:
-        from advisor_jax.agent.advisor import advisor_action, arena_advisor
+        from advisor_jax.agent.advisor_quality import AdvisorQuality
+        from advisor_jax.evaluation.evaluate import advisor_policy
+        from advisor_jax.training.advisor_source import resolve_advisor
 
-        return (lambda params, obs: advisor_action(obs, params)), arena_advisor(env)
+        resolved = resolve_advisor(advisor, env)
+        return advisor_policy(resolved), quality if quality is not None else AdvisorQuality()
     if isinstance(spec, RunSpec):
         from advisor_jax.training.run_directory import load_agent_policy
 
         return load_agent_policy(spec.directory, spec.index)
-    from advisor_jax.agent.networks import make_actor
-    from advisor_jax.deploy.export import actor_params_from_policy
-    from advisor_jax.runner.policy import load_policy
+    from advisor_jax.training.advisor_source import trained_policy
 
-    loaded = load_policy(spec)
-    # The arena runs with its own scales: an export made for others would be evaluated
-    # as it never drives (a forged v_max = 5 m/s got the honest numbers).
-    for name, unit in (("v_max", "m/s"), ("omega_max", "rad/s"), ("dt", "s")):
-        exported, arena = getattr(loaded, name), getattr(env.config, name)
-        if abs(exported - arena) > 1e-9:
-            raise ValueError(
-                f"{spec} was exported with {name}={exported:g} {unit} but the "
-                f"arena uses {arena:g}: its evaluation here would not be how it drives"
-            )
-    params, hidden = actor_params_from_policy(loaded)
-    return make_actor(hidden).apply, params
+    apply, params, _ = trained_policy(str(spec), env)  # the export, verified
+    return apply, params

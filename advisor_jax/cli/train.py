@@ -65,6 +65,7 @@ def train_command(args: TrainArgs) -> None:
             devices=args.devices,
             eval_seed=args.eval_seed,
             tracker=tracker,
+            eval_advisor=args.eval_advisor,
         )
     finally:
         tracker.close()

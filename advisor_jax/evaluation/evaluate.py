@@ -21,7 +21,7 @@ evaluate a whole sweep of agents in one program. The success rate is the paper's
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +29,7 @@ import numpy as np
 from flax import struct
 
 import envs
+from advisor_jax.agent.advisor_quality import advisor_key, make_acting, memory_init, restart
 from advisor_jax.agent.networks import make_actor
 from envs.navigation import COLLISION, GOAL, TIMEOUT, NavEnv
 
@@ -118,25 +119,56 @@ def summary(m: EvalMetrics) -> dict[str, float]:
     }
 
 
+class StatefulPolicy(NamedTuple):
+    """A policy with memory and random draws of its own (an advisor under its quality knobs,
+    ``agent/advisor_quality.py``); a plain ``PolicyApply`` has neither."""
+
+    init: Callable[[int], Any]  # n_envs -> memory
+    act: Callable[..., tuple[jax.Array, Any]]  # (params, memory, obs [E, 20], key) -> (a, memory)
+    restart: Callable[[Any, jax.Array], Any]  # (memory, done [E]) -> memory
+
+
+def _stateful(policy: PolicyApply | StatefulPolicy) -> StatefulPolicy:
+    if isinstance(policy, StatefulPolicy):
+        return policy
+    act = jax.vmap(policy, in_axes=(None, 0))
+    return StatefulPolicy(lambda n: (), lambda p, m, obs, key: (act(p, obs), m), lambda m, d: m)
+
+
+def advisor_policy(advisor) -> StatefulPolicy:
+    """An advisor (``agent/advisors.Advisor``) as a policy whose params are its quality knobs
+    (``AdvisorQuality``): the advisor the trainer consults, evaluated alone."""
+    act = make_acting(advisor.apply, advisor.params)
+    return StatefulPolicy(memory_init, act, restart)
+
+
 def make_rollout(
-    env: NavEnv, policy_apply: PolicyApply, n_envs: int, steps: int, record: Callable
+    env: NavEnv, policy: PolicyApply | StatefulPolicy, n_envs: int, steps: int, record: Callable
 ) -> Callable[[Any, jax.Array], tuple[Any, Any]]:
     """The one rollout: ``rollout_fn(params, key) -> (final states, records [steps, ...])``.
 
     ``n_envs`` environments reset from ``split(key, n_envs)`` and step ``steps`` times with
-    the deterministic policy (no noise; auto-reset on). Each step stores
-    ``record(state_before, state_after)``. Pure: jit or vmap it at the call site.
+    the policy (no exploration noise; auto-reset on). Each step stores
+    ``record(state_before, state_after)``. A ``StatefulPolicy`` draws from
+    ``advisor_key(key)`` folded with the step index, so the episodes are those of any policy
+    given ``key``. Pure: jit or vmap it at the call site.
     """
-    act = jax.vmap(policy_apply, in_axes=(None, 0))
+    policy = _stateful(policy)
     step = jax.vmap(env.step)
 
     def rollout_fn(params: Any, key: jax.Array):
-        def body(state, _):
-            new = step(state, act(params, state.obs))
-            return new, record(state, new)
+        act_key = advisor_key(key)
+
+        def body(carry, t):
+            state, memory = carry
+            action, memory = policy.act(params, memory, state.obs, jax.random.fold_in(act_key, t))
+            new = step(state, action)
+            return (new, policy.restart(memory, new.done)), record(state, new)
 
         states = jax.vmap(env.reset)(jax.random.split(key, n_envs))
-        return jax.lax.scan(body, states, None, length=steps)
+        carry = (states, policy.init(n_envs))
+        (states, _), records = jax.lax.scan(body, carry, jnp.arange(steps, dtype=jnp.int32))
+        return states, records
 
     return rollout_fn
 
@@ -153,7 +185,7 @@ def _episode_end(_, s) -> EvalMetrics:
 
 
 def make_evaluate(
-    env: NavEnv, policy_apply: PolicyApply, episodes: int
+    env: NavEnv, policy_apply: PolicyApply | StatefulPolicy, episodes: int
 ) -> Callable[[Any, jax.Array], EvalMetrics]:
     """Builds ``evaluate_fn(policy_params, key) -> EvalMetrics`` (jittable, vmappable).
 
@@ -211,6 +243,16 @@ def policy_population_evaluator(
     brax agent's, ``agent.brax_agents.policy_apply``) over params stacked on agents."""
     env = envs.make_env(arena, motion=motion, max_episode_steps=max_episode_steps)  # 0: h_max
     fn = make_evaluate(env, policy_apply, episodes)
+    return jax.jit(jax.vmap(fn, in_axes=(0, None)))
+
+
+def advisor_evaluator(
+    env: NavEnv, advisor, episodes: int
+) -> Callable[[Any, jax.Array], EvalMetrics]:
+    """jit(vmap over quality knobs) of the evaluation of ``advisor`` (an ``Advisor`` resolved
+    for ``env``'s arena) alone: ``(stacked AdvisorQuality, key) -> EvalMetrics [n, episodes]``,
+    on the episodes any policy gets from ``key``."""
+    fn = make_evaluate(env, advisor_policy(advisor), episodes)
     return jax.jit(jax.vmap(fn, in_axes=(0, None)))
 
 

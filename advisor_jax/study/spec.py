@@ -8,7 +8,7 @@
     first_seed = 0
     eval_seed = 0                    # every agent of the study on the same episodes
     eval_episodes = 100              # per evaluation arena
-    # eval_arenas = ["training", "validation"], checkpoint_every = 10 (chunks)
+    # eval_arenas = ["training", "validation"], checkpoint_every = 10 (chunks), eval_advisor
 
     [static]                         # settings with their own compile; a list sweeps them
     episodes = [100, 200, 300, 400, 500]
@@ -70,6 +70,7 @@ STATIC = {  # name: type; each a TrainArgs option (advisor-jax train --NAME)
     "chunk_steps": int,
     "snapshot_episodes": list,
     "baseline": dict,
+    "advisor": str,
 }
 NOT_SWEPT = ("snapshot_episodes", "baseline")  # a list or table here is one value
 STUDY_KEYS = {
@@ -82,6 +83,7 @@ STUDY_KEYS = {
     "eval_episodes": int,
     "eval_arenas": list,
     "checkpoint_every": int,
+    "eval_advisor": bool,
     "description": str,
 }
 TABLES = ("study", "static", "hp", "grid", "agent")
@@ -114,6 +116,7 @@ class Study:
     eval_arenas: tuple[str, ...] | None
     checkpoint_every: int
     groups: tuple[Group, ...]
+    eval_advisor: bool = False
 
     def args(self, group: Group) -> TrainArgs:
         """``advisor-jax train``'s options for ``group``: its static settings, and as ``--hp``
@@ -134,6 +137,7 @@ class Study:
             eval_episodes=self.eval_episodes,
             eval_arenas=self.eval_arenas,
             checkpoint_every=self.checkpoint_every,
+            eval_advisor=self.eval_advisor,
             hp=tuple(f"{k}={v!r}" for k, v in hp.items()),
             **static,
         )
@@ -147,6 +151,8 @@ class Study:
     def digest(self) -> str:
         """A hash of what the study trains (not of the file's text: comments do not count)."""
         record = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("path", "name")}
+        if not self.eval_advisor:  # as before the option existed: older sweeps keep their plan
+            del record["eval_advisor"]
         text = json.dumps(record, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -283,6 +289,7 @@ def _study(path: Path, raw: dict) -> Study:
         eval_arenas=tuple(head["eval_arenas"]) if "eval_arenas" in head else None,
         checkpoint_every=head.get("checkpoint_every", 10),
         groups=(),
+        eval_advisor=head.get("eval_advisor", False),
     )
     groups = []
     for agent in agents:

@@ -102,6 +102,7 @@ def run_training(
     eval_seed: int | None = None,
     points: Sequence[Mapping[str, float]] | None = None,
     tracker: Any = None,
+    eval_advisor: bool = False,
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
@@ -118,6 +119,8 @@ def run_training(
     ``points``: explicit grid points in place of the product of ``grid``'s values
     (``population.build_population``); ``grid`` then names the swept hyperparameters.
     ``tracker`` (``tracking.make_tracker``) also receives every chunk's log row.
+    ``eval_advisor``: also evaluate each agent's advisor alone (under its quality knobs) on
+    the same episodes: eval_advisor.json (``run_outputs.evaluate_advisor``).
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -161,7 +164,7 @@ def run_training(
             eval_episodes=eval_episodes, eval_arenas=eval_arenas,
             checkpoint_every=checkpoint_every, resume=resume, progress=progress,
             console=console, meta=meta, program=program, placement=placement,
-            eval_from=eval_from, tracker=tracker,
+            eval_from=eval_from, tracker=tracker, eval_advisor=eval_advisor,
         )  # fmt: skip
         return _train_locked(plan, stop)
 
@@ -186,6 +189,7 @@ class RunPlan:
     placement: Placement
     eval_from: int  # the evaluation episodes' seed
     tracker: Any = None  # ``tracking.Tracker`` or None
+    eval_advisor: bool = False  # also evaluate each agent's advisor alone
 
 
 def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
@@ -239,9 +243,10 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
         "grid": {k: list(map(float, v)) for k, v in grid.items()},
         "eval_seed": eval_from,
         "agents": agents,
+        "advisor": trainer.advisor.record(),  # spec, kind, sha256 of its parameters
         "status": "running",
     }
-    identity = run_state.run_identity(summary["config"], agents)
+    identity = run_state.run_identity(summary["config"], agents, summary["advisor"])
     summary["identity"] = identity
     if trainer.phases is not None:  # a baseline: its phases, RL last (docs/baselines.md)
         summary["phases"] = trainer.phases.describe
@@ -333,7 +338,7 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
         return run_outputs.finish_run(
             out_dir, state, hp, cfg, agents, grid, dict(summary), console, trainer.phases,
             train_seconds=seconds, eval_episodes=eval_episodes, eval_arenas=eval_arenas,
-            eval_key=eval_key(eval_from), check=stop.check,
+            eval_key=eval_key(eval_from), check=stop.check, eval_advisor=run.eval_advisor,
         )  # fmt: skip
     except KeyboardInterrupt as e:
         where = ("after training, during the final evaluation: training is complete and "

@@ -104,6 +104,10 @@ class TrainArgs:
     mjx (the Pioneer 3-DX's body and wheels stepped by MJX: acceleration, turn-rate and
     speed limits), optionally with parameters, e.g. mjx:wheel_torque_max=0.5. Evaluation,
     export and the car use the model the run trained with (docs/arena_calibration.md)."""
+    advisor: str | None = None
+    """The advisor (docs/advisors.md): rule (the paper's Algorithm A1, the default), a
+    registered name, MODULE:FUNCTION, a training run RUN[:AGENT] or an export directory.
+    Its quality knobs are hyperparameters: --grid advisor_random=0,0.2,0.4."""
     precision: Literal["fp32", "bf16"] = "fp32"
     """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
     activations with fp32 parameters, Adam and accumulation (faster on GPUs with bf16
@@ -131,6 +135,9 @@ class TrainArgs:
     --episodes), on the same episodes, into eval_episode<N>.json: e.g. --episodes 500
     --snapshot-episodes 200 answers for 200 episodes too (the same actor a 200-episode run
     ends with)."""
+    eval_advisor: bool = False
+    """Also evaluate each agent's advisor alone (under its quality knobs) on the same
+    evaluation episodes: eval_advisor.json."""
     eval_arenas: tuple[str, ...] | None = None
     """Evaluation arenas (default: training and validation; physical for the physical preset)."""
     eval_seed: int | None = None
@@ -201,11 +208,16 @@ def build_run(args: TrainArgs):
     train_overrides = {
         name: getattr(args, name)
         for name in ("episodes", "arena", "envs_per_agent", "updates_per_step",
-                     "max_episode_steps", "chunk_steps", "snapshot_episodes", "motion")
+                     "max_episode_steps", "chunk_steps", "snapshot_episodes", "motion",
+                     "advisor")
         if getattr(args, name) is not None
     }  # fmt: skip
     cfg = dataclasses.replace(cfg, **train_overrides)
     check_episodes(cfg.episodes)
+    if cfg.advisor != "rule":  # an unknown one fails here, before anything is written
+        from advisor_jax.training.advisor_source import resolve_advisor
+
+        resolve_advisor(cfg.advisor, _arena(cfg), check=False)
     overrides = parse_assignments(args.hp, "--hp")
     for name, values in overrides.items():
         if len(values) != 1:
@@ -231,3 +243,11 @@ def build_run(args: TrainArgs):
         ("physical",) if cfg.arena == "physical" else ("training", "validation")
     )
     return cfg, base_hp, grid, seeds, tuple(arenas)
+
+
+def _arena(cfg):
+    import envs
+
+    if cfg.arena not in envs.ARENAS:
+        raise ValueError(f"unknown arena {cfg.arena!r}; choose from {', '.join(envs.ARENAS)}")
+    return envs.make_env(cfg.arena, max_episode_steps=cfg.max_episode_steps)

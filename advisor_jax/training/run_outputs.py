@@ -8,9 +8,16 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
+import envs
+from advisor_jax.agent.hparams import rl_hparams
+from advisor_jax.evaluation.evaluate import (
+    advisor_evaluator,
+    evaluate_population,
+    population_evaluator,
+)
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training import checkpoint, plots, reporting
+from advisor_jax.training.advisor_source import resolve_advisor
 
 
 def write_episode_metrics(out_dir, state, hp, agents, phases=None):
@@ -32,7 +39,7 @@ def write_episode_metrics(out_dir, state, hp, agents, phases=None):
 
 def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, *,
                train_seconds, eval_episodes, eval_arenas, eval_key,
-               check=lambda: None) -> dict:  # fmt: skip
+               check=lambda: None, eval_advisor=False) -> dict:  # fmt: skip
     """Final parameters, metrics, evaluation, figures and the summary (process 0, host
     state of the real agents); returns the summary written to run.json. ``check`` is called
     between the stages (``interrupts.StopRequest.check``: a signal stops the run there);
@@ -67,6 +74,11 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
             )
             atomic_write_json(out_dir / f"eval_episode{n}.json", at_n)
             summary.setdefault("evaluation_at_episode", {})[str(n)] = at_n
+        if eval_advisor:
+            check()
+            advice = evaluate_advisor(cfg, rl_hparams(hp), eval_arenas, eval_episodes, eval_key)
+            atomic_write_json(out_dir / "eval_advisor.json", advice)
+            summary["advisor_evaluation"] = advice
     check()
     plots.plot_learning_curves(
         out_dir / "learning_curve.png", metrics, agents, grid, name=cfg.agent.name,
@@ -88,6 +100,27 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
     atomic_write_json(run_file, summary)
     reporting.print_summary(console, summary, metrics, grid)
     return summary
+
+
+def evaluate_advisor(cfg, hp, arenas, episodes: int, key) -> dict:
+    """Each agent's advisor alone, under its quality knobs (``hp.quality``, stacked), on the
+    episodes of ``key`` (those of eval.json): eval.json's layout, one entry per agent. Agents
+    with the same knobs share one evaluation (the advisor's draws come from ``key`` too)."""
+    knobs = jax.tree.map(np.asarray, hp.quality)
+    table = np.stack(jax.tree.leaves(knobs), axis=-1)  # [agents, knobs]
+    _, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
+    distinct = jax.tree.map(lambda x: x[first], knobs)  # one row per distinct setting
+    out = {}
+    for arena in arenas:
+        env = envs.make_env(arena, max_episode_steps=cfg.max_episode_steps)
+        advisor = resolve_advisor(cfg.advisor, env, check=False)  # checked by make_core
+        evaluator = advisor_evaluator(env, advisor, episodes)
+        result = evaluate_population({arena: evaluator}, distinct, key)[arena]
+        out[arena] = {
+            k: v if k == "episodes" else [v[int(i)] for i in inverse.reshape(-1)]
+            for k, v in result.items()
+        }
+    return out
 
 
 def _evaluate(evaluators, actor, key, diverged, check) -> dict:

@@ -4,11 +4,13 @@ file belongs to, and whether a directory is exactly one run.
 * ``read_run_json(path)``: run.json as a dict whose every field a reader uses has the
   right type, or ValueError naming the file and the field (``[1, 2, 3]``, ``null``, a
   string for ``agents`` ... reached ``AttributeError`` tracebacks).
-* ``run_identity(config, agents)``: ``{"config_sha256", "seeds"}``, the sha256 of the
-  canonical JSON of the run's config and agents (seeds and hyperparameters) and the seeds
-  themselves. run.json, every checkpoint's and the final parameters' ``sha256.json`` carry
-  it (``checkpoint``), so a file copied from another run, or one left by a killed run whose
-  run.json was removed, is refused instead of mixed in.
+* ``run_identity(config, agents, advisor)``: ``{"config_sha256", "seeds"}``, the sha256 of
+  the canonical JSON of the run's config, agents (seeds and hyperparameters) and advisor
+  (its spec and the sha256 of its parameters, ``training/advisor_source``; runs of older
+  versions have none) and the seeds themselves. run.json, every checkpoint's and the
+  final parameters' ``sha256.json`` carry it (``checkpoint``), so a file copied from another
+  run, or one left by a killed run whose run.json was removed, is refused instead of mixed
+  in; a run whose advisor changed is not resumed (``check_same_advisor``).
 * ``check_new_directory(out_dir)``: a fresh run needs an empty directory (``.lock`` aside):
   a killed run's checkpoints or log would otherwise be taken for the new run's.
 * ``check_run_entries(out_dir)``: the files of a run are not links (a resumed run writes
@@ -44,10 +46,14 @@ def canonical_sha256(obj: Any) -> str:
     return hashlib.sha256(text.encode("ascii")).hexdigest()
 
 
-def run_identity(config: dict, agents: list[dict]) -> dict:
-    """The identity of a run: sha256 of its config and agents (as run.json holds them), and
-    its seeds (readable in messages)."""
-    plain = json.loads(json.dumps({"config": config, "agents": agents}))  # tuples -> lists
+def run_identity(config: dict, agents: list[dict], advisor: dict | None = None) -> dict:
+    """The identity of a run: sha256 of its config, agents and advisor record (as run.json
+    holds them; no advisor: a run of an older version), and its seeds (readable in
+    messages)."""
+    record = {"config": config, "agents": agents}
+    if advisor is not None:
+        record["advisor"] = advisor
+    plain = json.loads(json.dumps(record))  # tuples -> lists
     return {
         "config_sha256": canonical_sha256(plain),
         "seeds": [int(a["seed"]) for a in plain["agents"]],
@@ -116,6 +122,7 @@ def read_run_json(path: str | os.PathLike) -> dict:
         ("evaluation", dict),
         ("grid", dict),
         ("identity", dict),
+        ("advisor", dict),
         ("created", str),
         ("train_seconds", int | float),
     ):
@@ -126,11 +133,13 @@ def read_run_json(path: str | os.PathLike) -> dict:
     if seconds is not None and not (math.isfinite(seconds) and seconds >= 0):
         raise _problem(path, f"train_seconds is {seconds!r}")
     identity = record.get("identity")
-    if identity is not None and identity != run_identity(record["config"], agents):
+    if identity is not None and identity != run_identity(
+        record["config"], agents, record.get("advisor")
+    ):
         raise _problem(
             path,
-            f"its identity ({describe_identity(identity)}) does not match its own config and "
-            "agents (run.json was edited, or pieced together from two runs)",
+            f"its identity ({describe_identity(identity)}) does not match its own config, "
+            "agents and advisor (run.json was edited, or pieced together from two runs)",
         )
     return record
 
@@ -159,16 +168,40 @@ def resume_record(run_file: Path, summary: dict) -> dict:
     by a version that recorded none)."""
     saved = read_run_json(run_file)
     current = json.loads(json.dumps({"config": summary["config"], "agents": summary["agents"]}))
+    if "advisor" not in saved["config"]:
+        if saved["status"] != "finished":
+            raise ValueError(
+                f"cannot resume {run_file.parent}: it was started by a version before plug-in "
+                "advisors, whose checkpoints lack the advisor's state; train it anew"
+            )
+        current["config"].pop("advisor", None)  # finished: nothing is resumed
     found = differences({k: saved.get(k) for k in current}, current)
     if found:
         raise ValueError(
             f"cannot resume {run_file.parent}: its config or agents differ from these: "
             + "; ".join(found)
         )
+    check_same_advisor(saved.get("advisor"), summary.get("advisor"), run_file.parent)
     if "identity" not in saved:
         summary.pop("identity", None)
     summary["created"] = saved.get("created", summary["created"])
     return saved
+
+
+def check_same_advisor(saved: dict | None, current: dict | None, run_dir: Path) -> None:
+    """Refuses to resume a run whose advisor (run.json's ``advisor``: spec, kind, sha256 of
+    its parameters and of a function's source) differs from the one it was trained with."""
+    if saved is None or current is None:
+        return
+    names = {"spec": "name", "kind": "kind", "params_sha256": "parameters",
+             "source_sha256": "function's source"}  # fmt: skip
+    for key, what in names.items():
+        if saved.get(key) != current.get(key):
+            raise ValueError(
+                f"cannot resume {run_dir}: its advisor's {what} changed since it started "
+                f"(run.json: {str(saved.get(key))[:16]}, now: {str(current.get(key))[:16]}); "
+                f"restore advisor {saved.get('spec')!r} as it was, or train a new run"
+            )
 
 
 def differences(saved, current, path: str = "") -> list[str]:

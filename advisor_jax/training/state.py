@@ -11,6 +11,7 @@ import jax.numpy as jnp
 from flax import struct
 
 import envs
+from advisor_jax.agent.advisor_quality import AdvisorMemory
 from advisor_jax.agent.learner import LearnerState
 from advisor_jax.agent.noise import OUState
 from advisor_jax.agent.replay_buffer import ReplayState
@@ -46,6 +47,7 @@ class TrainState:
     replay: ReplayState
     env: Any  # envs NavState, leading axis [E]
     noise: OUState  # [E, 2]
+    advisor: AdvisorMemory  # [E, ...] what a delayed advisor remembers (advisor_quality)
     actor_steps: jax.Array  # [E] int32, actor-fired steps of the running episodes
     episodes: jax.Array  # () int32, completed episodes N (Eq. 1)
     env_steps: jax.Array  # () int32, environment steps taken while active (all envs)

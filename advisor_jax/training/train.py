@@ -5,7 +5,8 @@ One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
 
     step(state, hp, t):                                      # one environment step
         active = N < N_total and not diverged
-        collect:  a_act = π(s);  a_adv = advisor(s)          # Alg. 1 steps 9-10
+        collect:  a_act = π(s);  a_adv = advisor(s)          # Alg. 1 steps 9-10 (any
+                                                             # advisor, its quality knobs)
                   if AfD:  ε = Eq. (1) with Q = critic (min of twins)     # step 11 / A2 11-13
                            a = a_adv with probability ε, else a_act       # step 12
                   a = clip(a + Ornstein–Uhlenbeck noise, action box)      # step 13
@@ -54,7 +55,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
-from advisor_jax.agent.advisor import advisor_action, arena_advisor
+from advisor_jax.agent.advisor_quality import advisor_key, make_acting, memory_init, restart
 from advisor_jax.agent.config import TrainConfig
 from advisor_jax.agent.hparams import HParams
 from advisor_jax.agent.learner import Learner, make_learner, nan_like
@@ -64,6 +65,7 @@ from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.agent.selector import select_action
 from advisor_jax.agent.settings import freeze
 from advisor_jax.contract import spec
+from advisor_jax.training.advisor_source import resolve_advisor
 from advisor_jax.training.state import (
     EpisodeLog,
     TrainState,
@@ -83,15 +85,18 @@ class Core(NamedTuple):
     env: Any  # envs.NavEnv
     learner: Learner
     actor: Any  # networks.Actor, fp32: the acting policy
+    advisor: Any  # agent.advisors.Advisor: the run's advisor (``TrainConfig.advisor``)
     init: Callable[[jax.Array], TrainState]
-    act: Callable[[TrainState, jax.Array], tuple[jax.Array, jax.Array]]
-    """(state, obs [E, 20]) -> (π(s), a_adv), each [E, 2]."""
+    act: Callable[..., tuple[jax.Array, jax.Array, Any]]
+    """(state, obs [E, 20], hp) -> (π(s), a_adv, advisor memory): a_adv from the advisor under
+    the agent's quality knobs (``hp.quality``), drawing on a key of its own."""
     step_envs: Callable[..., tuple[Any, Transition]]
     """(state, obs, chosen [E, 2], noise [E, 2], label [E, 2]) -> (env state, transition):
     the executed action clip(chosen + noise), one env step, the replay row."""
     record: Callable[..., TrainState]
-    """(state, key, env_state, noise_state, replay, fired [E], done [E], active) -> state:
-    the step's env, noise, buffer and key kept, and its finished episodes logged."""
+    """(state, key, env_state, noise_state, replay, fired [E], done [E], active, advisor
+    memory) -> state: the step's env, noise, buffer, advisor memory and key kept, and its
+    finished episodes logged."""
     learn: Callable[[TrainState, HParams, jax.Array], tuple[TrainState, Metrics, jax.Array]]
     """(state, hp, step index) -> (state, metrics, nonfinite): the step's updates."""
     learn_past_warmup: Callable[[Callable], Callable]
@@ -120,6 +125,7 @@ class Trainer(NamedTuple):
     max_steps: int  # scan steps after which every agent is surely done
     steady: bool = False  # whether ``chunk`` holds the steady program (module docstring)
     phases: PhaseReport | None = None  # a baseline's phases before RL (``training/prior/``)
+    advisor: Any = None  # agent.advisors.Advisor the program consults (run.json's record)
 
 
 def init_keys(key: jax.Array) -> jax.Array:
@@ -137,7 +143,8 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
     each is short."""
     agent = cfg.agent
     env = envs.make_env(cfg.arena, motion=cfg.motion, max_episode_steps=cfg.max_episode_steps)
-    advisor = arena_advisor(env)
+    advisor = resolve_advisor(cfg.advisor, env)  # a user's function checked here
+    advise = make_acting(advisor.apply, advisor.params)
     bounds = functools.partial(return_bounds, env.config)
     learner = make_learner(agent, bounds, inputs_per_critic)
     actor = make_actor(agent.actor_hidden)
@@ -154,6 +161,7 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
             replay=replay_init(agent.buffer_size),
             env=jax.vmap(env.reset)(jax.random.split(k_env, n_envs)),
             noise=ou_init((n_envs, spec.ACTION_SIZE)),
+            advisor=memory_init(n_envs),
             actor_steps=jnp.zeros(n_envs, jnp.int32),
             episodes=jnp.zeros((), jnp.int32),
             env_steps=jnp.zeros((), jnp.int32),
@@ -169,9 +177,11 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
             key=key,
         )
 
-    def act(state: TrainState, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def act(state: TrainState, obs: jax.Array, hp: HParams):
         actor_action = actor.apply(state.learner.actor, obs)  # [E, 2]
-        return actor_action, jax.vmap(advisor_action, in_axes=(0, None))(obs, advisor)
+        # The advisor's key is folded from the step's: every other stream stays as it was.
+        advisor_action, memory = advise(hp.quality, state.advisor, obs, advisor_key(state.key))
+        return actor_action, advisor_action, memory
 
     def step_envs(state: TrainState, obs, chosen, noise, label):
         action = jnp.clip(chosen + noise, action_low, action_high)
@@ -186,13 +196,14 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
         )
         return env_state, transition
 
-    def record(state: TrainState, key, env_state, noise_state, replay, fired, done, active):
+    def record(state: TrainState, key, env_state, noise_state, replay, fired, done, active, memory):
         actor_steps = state.actor_steps + fired.astype(jnp.int32)
         log = write_episodes(state.log, state.episodes, env_state, actor_steps, done)
         return state.replace(
             replay=replay,
             env=env_state,
             noise=ou_reset(noise_state, done),
+            advisor=restart(memory, done),
             actor_steps=jnp.where(done, 0, actor_steps),
             episodes=state.episodes + jnp.sum(done, dtype=jnp.int32),
             env_steps=state.env_steps + n_envs * active.astype(jnp.int32),
@@ -259,6 +270,7 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
         env=env,
         learner=learner,
         actor=actor,
+        advisor=advisor,
         init=init,
         act=act,
         step_envs=step_envs,
@@ -289,7 +301,7 @@ def make_train(cfg: TrainConfig, steady: bool = False, inputs_per_critic: bool =
         """One environment step of every env of the agent (Alg. 1 / A2, steps 8-16)."""
         key, k_select, k_noise = jax.random.split(state.key, 3)
         obs = state.env.obs  # [E, 20]
-        actor_action, adv_action = core.act(state, obs)
+        actor_action, adv_action, memory = core.act(state, obs, hp)
         if agent.advisor_data:
             q_actor = learner.q_select(state.learner.critic, obs, actor_action)  # [E]
             q_advisor = learner.q_select(state.learner.critic, obs, adv_action)
@@ -309,7 +321,7 @@ def make_train(cfg: TrainConfig, steady: bool = False, inputs_per_critic: bool =
         replay = replay_add(state.replay, transition)
         fired = ~used_advisor
         done = env_state.done
-        return core.record(state, key, env_state, noise_state, replay, fired, done, active)
+        return core.record(state, key, env_state, noise_state, replay, fired, done, active, memory)
 
     def step(state: TrainState, hp: HParams, step_index: jax.Array, learn=core.learn):
         active = (state.episodes < n_total) & ~state.diverged
@@ -359,7 +371,9 @@ def make_train(cfg: TrainConfig, steady: bool = False, inputs_per_critic: bool =
             state,
         )
 
-    return Trainer(init=core.init, chunk=chunk, max_steps=core.max_steps, steady=steady)
+    return Trainer(
+        init=core.init, chunk=chunk, max_steps=core.max_steps, steady=steady, advisor=core.advisor
+    )
 
 
 def steady_at(first_step, n_envs: int, warmup: int, delay: int):

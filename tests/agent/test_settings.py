@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from advisor_jax.agent.advisor_quality import AdvisorQuality
 from advisor_jax.agent.baselines import BaselineConfig
 from advisor_jax.agent.config import (
     PRESETS,
@@ -45,12 +46,17 @@ from advisor_jax.agent.settings import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
-ALL_HPARAMS = (HParams, *PRIOR_HPARAMS.values())
+ALL_HPARAMS = (HParams, AdvisorQuality, *PRIOR_HPARAMS.values())
+
+
+def declared(cls) -> list:
+    """``cls``'s fields but a nested struct of them (``HParams.quality``, in ALL_HPARAMS)."""
+    return [f for f in dataclasses.fields(cls) if f.default_factory is not AdvisorQuality]
 
 
 def test_every_setting_is_declared_with_a_spec():
     for cls in ALL_HPARAMS:
-        for f in dataclasses.fields(cls):
+        for f in declared(cls):
             spec = spec_of(f)
             assert spec is not None and spec.sweepable and spec.help, f.name
             assert spec.allows(np.array([f.default])).all(), f"{f.name}'s default"
@@ -64,8 +70,7 @@ def test_every_setting_is_declared_with_a_spec():
 
 def test_learning_rates_and_tau_freeze_and_nothing_else():
     """A new learning rate must freeze, or a finished agent keeps learning."""
-    frozen = {f.name for cls in ALL_HPARAMS for f in dataclasses.fields(cls)
-              if spec_of(f).freezes}  # fmt: skip
+    frozen = {f.name for cls in ALL_HPARAMS for f in declared(cls) if spec_of(f).freezes}
     rates = {n for n in HPARAM_NAMES if n.startswith("lr_") or n.endswith("_lr")}
     assert frozen == rates | {"tau"}
     hp = BaselineHParams(rl=HParams(), prior=McpHParams())

@@ -15,12 +15,14 @@ from advisor_jax.agent.settings import flat_items, replace_flat
 def write_run(root: Path, name: str, agent: str, seeds, success, *, preset_name="stable",
               hp=None, episodes=None, eval_seed=0, eval_episodes=50,
               arenas=("training", "validation"), status="finished", extra_evals=None,
-              snapshots=None, outcome=None, **static):  # fmt: skip
+              snapshots=None, outcome=None, advisor="rule", advisor_success=None,
+              **static):  # fmt: skip
     """A finished run of ``agent`` (one agent per seed) whose agents scored ``success`` (per
-    seed) in the first arena and ``success - 0.1`` in the others."""
+    seed) in the first arena and ``success - 0.1`` in the others; its advisor alone
+    ``advisor_success`` (per seed, ``--eval-advisor``) likewise."""
     cfg, base = preset(preset_name, agent)
     cfg = dataclasses.replace(cfg, agent=dataclasses.replace(cfg.agent, **static),
-                              episodes=episodes or cfg.episodes)  # fmt: skip
+                              episodes=episodes or cfg.episodes, advisor=advisor)  # fmt: skip
     base = replace_flat(base, **(hp or {}))
     rows = [{"seed": s, "index": i, **{n: float(v) for n, v in flat_items(base).items()}}
             for i, s in enumerate(seeds)]  # fmt: skip
@@ -40,6 +42,8 @@ def write_run(root: Path, name: str, agent: str, seeds, success, *, preset_name=
         "command": f"advisor-jax train --agent {agent}",
         "env_steps_per_agent": [100] * len(rows), "train_seconds": 1.0,
     }  # fmt: skip
+    if advisor_success is not None:
+        summary["advisor_evaluation"] = evaluation(advisor_success)
     if snapshots:
         summary["evaluation_at_episode"] = {str(n): evaluation(v) for n, v in snapshots.items()}
     run = root / name

@@ -151,3 +151,36 @@ def test_every_figure_labels_its_axes(runs, tmp_path, monkeypatch):
             if ax.get_visible() and (ax.lines or ax.collections or ax.patches):
                 assert ax.get_xlabel() or ax.get_xticklabels(), (name, ax.get_title())
                 assert ax.get_ylabel(), (name, ax.get_title())
+
+
+def test_advisor_quality_plots_agents_against_their_advisors_own_success(tmp_path):
+    root, teacher = tmp_path / "runs", "experiments/paper/advisors/teacher"
+    for name, knob, own, agent_success in (("r0", 0.0, 0.55, 0.80), ("r3", 0.3, 0.35, 0.70)):
+        write_run(root, f"afd_{name}", "ADDPG+AfD", [0, 1, 2, 3],
+                  [agent_success + d for d in (0.0, 0.02, -0.02, 0.04)],
+                  hp={"advisor_random": knob}, advisor_success=[own] * 4,
+                  snapshots={100: [0.4, 0.5, 0.45, 0.5]})  # fmt: skip
+    write_run(root, "afd_teacher", "ADDPG+AfD", [0, 1, 2, 3], [0.9, 0.92, 0.88, 0.9],
+              advisor=teacher, advisor_success=[0.85] * 4)  # fmt: skip
+    write_run(root, "addpg", "ADDPG", [0, 1, 2, 3], [0.75, 0.75, 0.75, 0.79],
+              advisor_success=[0.55] * 4, snapshots={100: [0.3, 0.3, 0.3, 0.3]})  # fmt: skip
+    write_run(root, "lfd", "LfD", [0, 1, 2, 3], [0.6, 0.6, 0.7, 0.7], advisor_success=[0.55] * 4)
+    out = tmp_path / "report"
+    make_report([root], out, items=["advisor_quality"], say=lambda _: None)
+    record = json.loads((out / "advisor_quality.json").read_text())
+    final = next(s for s in record["series"] if s["agent"] == "ADDPG+AfD" and s["budget"] == 500)
+    labels = [a["label"] for a in final["advisors"]]
+    assert labels == ["rule, advisor_random=0.3", "rule", "teacher"]  # by the advisor's success
+    assert [a["advisor_success"]["training"] for a in final["advisors"]] == [0.35, 0.55, 0.85]
+    assert final["advisors"][2]["advisor_success"]["validation"] == pytest.approx(0.75)
+    assert final["control"]["agent"] == "ADDPG"
+    versus = final["advisors"][1]["versus_control"]["training"]  # rule: +5, +7, +3, +5 points
+    assert versus["mean"] == pytest.approx(5.0) and versus["verdict"] == "holds"
+    assert final["advisors"][0]["versus_control"]["training"]["verdict"] == "reversed"
+    early = next(s for s in record["series"] if s["agent"] == "ADDPG+AfD" and s["budget"] == 100)
+    assert [a["label"] for a in early["advisors"]] == ["rule, advisor_random=0.3", "rule"]
+    assert early["control"]["training"]["mean"] == pytest.approx(0.3)
+    lfd = next(s for s in record["series"] if s["agent"] == "LfD")
+    assert lfd["control"] is None  # no DDPG among the runs
+    assert (out / "advisor_quality.png").is_file()
+    assert "agent − control, training (points)" in (out / "report.md").read_text()

@@ -76,6 +76,11 @@ def test_cli_unwritable_path_is_a_one_line_error(tmp_path, capsys):
         (["arena", "nowhere", "--xml", "x.xml"], "unknown arena 'nowhere'"),
         (["evaluate", "--policy", "oracle"], "--policy oracle: oracle does not exist"),
         (["evaluate", "--episodes", "0"], "--episodes must be a positive integer"),
+        (["evaluate", "--hp", "beta=1"], "--hp beta: not an advisor quality knob"),
+        (["evaluate", "--hp", "advisor_delay=2.5"], "advisor_delay=2.5 is not one of the"),
+        (["evaluate", "--policy", "runs/x", "--hp", "advisor_noise=1"], "use them with --policy"),
+        (["evaluate", "--advisor", "nowhere:thing"], "no module named 'nowhere'"),
+        (["train", "--advisor", "no/such/run"], "unknown advisor 'no/such/run'"),
     ],
 )
 def test_cli_bad_values_exit_2_with_a_message(argv, needle, capsys):
@@ -92,6 +97,12 @@ def test_cli_evaluate_json(capsys):
     assert result["episodes"] == 8 and result["policy"] == "advisor"
     total = result["success_rate"] + result["collision_rate"] + result["timeout_rate"]
     assert total == pytest.approx(1.0)
+    assert result["advisor"]["spec"] == "rule" and result["quality"]["advisor_random"] == 0.0
+    code, out, _ = _run(["evaluate", "--episodes", "8", "--json", "--hp", "advisor_random=1"],
+                        capsys)  # fmt: skip
+    randomly = json.loads(out)  # the same episodes, the advisor acting at random
+    assert code == 0 and randomly["quality"]["advisor_random"] == 1.0
+    assert randomly["mean_length"] != result["mean_length"]
 
 
 def test_cli_help_lists_subcommands(capsys):

@@ -88,3 +88,25 @@ def test_evaluate_keeps_the_first_episode_and_vmaps_over_params(short_env):
 def test_make_evaluate_rejects_bad_episode_counts(short_env):
     with pytest.raises(ValueError, match="episodes"):
         make_evaluate(short_env, lambda p, o: o[:2], 0)
+
+
+def test_the_advisor_is_evaluated_through_its_interface_on_the_same_episodes(short_env):
+    """The advisor alone (``advisor_evaluator``) vmaps over quality knobs; at zero knobs it is
+    the plain rule on the same episodes (its own draws leave the starts as they are)."""
+    from advisor_jax.agent.advisor import advisor_action, arena_advisor
+    from advisor_jax.agent.advisor_quality import AdvisorQuality
+    from advisor_jax.evaluation.evaluate import advisor_evaluator
+    from advisor_jax.training.advisor_source import resolve_advisor
+
+    episodes, key = 24, jax.random.PRNGKey(9)
+    advisor = resolve_advisor("rule", short_env)
+    qualities = [AdvisorQuality(), AdvisorQuality(advisor_random=1.0)]
+    stacked = jax.tree.map(lambda *x: jnp.asarray(x, jnp.float32), *qualities)
+    both = advisor_evaluator(short_env, advisor, episodes)(stacked, key)
+    plain = jax.jit(make_evaluate(short_env, lambda p, o: advisor_action(o, p), episodes))(
+        arena_advisor(short_env), key
+    )
+    np.testing.assert_array_equal(both.outcome[0], plain.outcome)
+    np.testing.assert_array_equal(both.length[0], plain.length)
+    np.testing.assert_allclose(both.episode_return[0], plain.episode_return, atol=1e-4)
+    assert not np.array_equal(both.length[1], plain.length)  # acting at random differs

@@ -121,3 +121,37 @@ def test_the_digest_ignores_comments_and_sees_values(tmp_path):
     b = study(tmp_path, HEAD + "# a comment\n[grid]\nbeta = [1, 2]", "b.toml")
     c = study(tmp_path, HEAD + "[grid]\nbeta = [1, 3]", "c.toml")
     assert a.digest == b.digest != c.digest
+
+
+def test_the_advisor_quality_study_reads(monkeypatch):
+    """Two advisors × three qualities for the advised types, one point for each control,
+    every advisor evaluated alone; a study without eval_advisor keeps the digest it had."""
+    import dataclasses
+    import hashlib
+    import json
+
+    monkeypatch.chdir(ROOT)  # the trained advisor's path is relative to the repository
+    s = load_study(ROOT / "experiments" / "paper" / "advisor_quality.toml")
+    assert s.eval_advisor and s.eval_episodes == 500 and len(s.seeds) == 16
+    advised = [g for g in s.groups if g.agent in ("ADDPG+AfD", "ADDPG+AfP", "ATD3+AfDP", "LfD")]
+    assert len(advised) == 8 and all(len(g.points) == 3 for g in advised)
+    assert {g.static["advisor"] for g in advised} == {
+        "rule", "experiments/paper/advisors/atd3_quick_300ep"
+    }  # fmt: skip
+    controls = [g for g in s.groups if g not in advised]
+    assert [(g.agent, g.static["advisor"], g.points) for g in controls] == [
+        (a, "rule", ({"advisor_random": 0.0},)) for a in ("ADDPG", "ATD3", "DDPG")
+    ]
+    cfg, _, _ = s.config(advised[1])
+    assert cfg.advisor == "experiments/paper/advisors/atd3_quick_300ep"
+    quick = load_study(ROOT / "experiments" / "studies" / "quick.toml")
+    record = {k: v for k, v in dataclasses.asdict(quick).items()
+              if k not in ("path", "name", "eval_advisor")}  # fmt: skip
+    text = json.dumps(record, sort_keys=True, default=str)
+    assert quick.digest == hashlib.sha256(text.encode()).hexdigest()[:16]
+    assert dataclasses.replace(quick, eval_advisor=True).digest != quick.digest
+
+
+def test_an_unknown_advisor_is_named(tmp_path):
+    with pytest.raises(StudyError, match="unknown advisor 'no/such/run:0'"):
+        study(tmp_path, HEAD + '[static]\nadvisor = "no/such/run:0"\n')

@@ -330,3 +330,23 @@ def test_cli_bad_baseline_input_is_one_line(argv, needle, tmp_path, capsys):
     assert exit_info.value.code == 2 and "Traceback" not in err
     assert needle in " ".join(err.split()), err
     assert not (tmp_path / "run").exists()
+
+
+def test_demonstrations_come_from_the_runs_advisor():
+    """LfD consults the advisor through the interface: with a registered advisor that always
+    proposes (0.3, -0.2), every demonstration step executes it (OU σ = 0) and stores it as
+    a_adv; once RL starts the actor acts."""
+    from advisor_jax.agent.advisors import register_advisor
+
+    register_advisor("test_lfd_constant", lambda p, obs: p + 0.0 * obs[:2], jnp.array([0.3, -0.2]))
+    cfg = dataclasses.replace(TINY_LFD, episodes=2, advisor="test_lfd_constant")
+    trainer, init_fn, chunk_fn = population_functions(cfg)
+    hp, agents = build_population(BASE_HP, {"demo_episodes": [1.0]}, [0])
+    state, _ = _run(init_fn, chunk_fn, agent_keys([0]), hp, n_chunks=3)
+    data, length = agent_slice(state.replay.data, 0), np.asarray(state.log.length[0])
+    demo = slice(0, int(length[0]))
+    np.testing.assert_allclose(data.action[demo], np.tile([0.3, -0.2], (length[0], 1)), atol=1e-7)
+    np.testing.assert_allclose(data.advisor_action[demo], data.action[demo])
+    assert trainer.advisor.kind == "registered"
+    rl = slice(int(length[0]), int(length.sum()))
+    assert not np.allclose(data.action[rl], [0.3, -0.2])

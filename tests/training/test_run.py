@@ -156,6 +156,8 @@ def test_export_cli_writes_a_policy_the_runner_accepts(finished_run, tmp_path):
     assert policy.meta["config"]["agent"] == "ATD3+AfDP"
     assert policy.meta["config"]["seed"] == 1
     assert policy.meta["env"]["arena"] == "training"
+    record = json.loads((out / "run.json").read_text())["advisor"]
+    assert policy.meta["config"]["advisor"] == record and record["spec"] == "rule"
     with pytest.raises(SystemExit) as exit_info:
         main(["export", str(out), "--agent", "7", "--out", str(tmp_path / "bad")])
     assert exit_info.value.code == 2

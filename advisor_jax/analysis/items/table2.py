@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from advisor_jax import stats
+from advisor_jax.agent.advisor_quality import changed_knobs
 from advisor_jax.agent.baselines import prior_episodes
 from advisor_jax.agent.config import hparams_from_row, train_config_from_dict
 from advisor_jax.analysis.items.base import (
@@ -116,6 +117,14 @@ def type_rows(points: list[Point]) -> tuple[list[dict], list[str]]:
     return rows, notes
 
 
+def advisor_row_label(record: dict) -> str:
+    """ "Advisor", or with the advisor's spec and knobs where it is not the paper's rule as it
+    is (an ``advisor-jax evaluate --policy advisor --json`` record)."""
+    spec = (record.get("advisor") or {}).get("spec", "rule")
+    knobs = changed_knobs(record.get("quality") or {})
+    return "Advisor" if spec == "rule" and not knobs else f"Advisor ({', '.join([spec, *knobs])})"
+
+
 def table2(points: list[Point], context) -> Item | None:
     rows, notes = type_rows(points)
     if not rows:
@@ -131,7 +140,7 @@ def table2(points: list[Point], context) -> Item | None:
         collisions = round(advisor["collision_rate"] * advisor["episodes"])
         table3.append(
             (
-                "Advisor",
+                advisor_row_label(advisor),
                 _speed(advisor["mean_collision_speed"], advisor["collision_speed_sd"]),
                 f"{collisions} of {advisor['episodes']}",
                 f"{p[0]:.2f} ± {p[1]:.2f}",

@@ -145,9 +145,7 @@ def _train_seeds(req, summary, console, progress, tracker, stop) -> list[dict]:
 
 
 def _train_each(req, summary, console, progress, tracker, stop) -> list[dict]:
-    env = envs.make_brax_env(
-        req.arena, motion=req.motion, max_episode_steps=req.max_episode_steps
-    )
+    env = envs.make_brax_env(req.arena, motion=req.motion, max_episode_steps=req.max_episode_steps)
     budget = Budget(req.episodes, req.settings.num_envs, env.episode_length)
     agents = summary["agents"]
     log_path = req.out / "train_log.jsonl"

@@ -101,7 +101,7 @@ def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> Pri
         (nothing stored, logged or counted)."""
         key, _, k_noise, k_phase = jax.random.split(state.key, 4)
         obs = state.env.obs  # [E, 20]
-        actor_action, adv_action = core.act(state, obs)
+        actor_action, adv_action, memory = core.act(state, obs, hp.rl)
         noise_state, noise = ou_step(state.noise, k_noise, hp.rl.ou_theta, hp.rl.ou_sigma)
         control, acting = phases.control(
             schedule, phase, state, obs, actor_action, adv_action, k_phase, hp, gate
@@ -112,10 +112,11 @@ def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> Pri
         held = lambda new, old: jnp.where(acting, new, old)  # noqa: E731
         env_state = jax.tree.map(held, env_state, state.env)
         noise_state = jax.tree.map(held, noise_state, state.noise)
+        memory = jax.tree.map(held, memory, state.advisor)
         done, fired = env_state.done & acting, control.actor_fired & acting
         replay = replay_add(state.replay, transition, jnp.broadcast_to(acting, (n_envs,)))
         active = active & acting
-        return core.record(state, key, env_state, noise_state, replay, fired, done, active)
+        return core.record(state, key, env_state, noise_state, replay, fired, done, active, memory)
 
     def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
         return core.learn(state, hp.rl, step_index)
@@ -143,7 +144,9 @@ def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> Pri
         params=_extra_params,
     )
     # Offline phases take scan steps without env steps.
-    trainer = Trainer(init, chunk, core.max_steps + schedule.offline_steps, phases=report)
+    trainer = Trainer(
+        init, chunk, core.max_steps + schedule.offline_steps, phases=report, advisor=core.advisor
+    )
     return PriorProgram(trainer, schedule, n_total, cfg.chunk_steps)
 
 
