@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -55,7 +56,15 @@ def rank(agent: str) -> tuple:
 
 
 def ordered(points: Iterable[Point]) -> list[Point]:
-    return sorted(points, key=lambda p: (rank(p.agent), p.budget, p.text()))
+    """By agent type (the paper's order), budget, then settings with numbers compared as
+    numbers (N_T = 50 before 100)."""
+    return sorted(points, key=lambda p: (rank(p.agent), p.budget, natural_key(p.text())))
+
+
+def natural_key(text: str) -> tuple:
+    """``text`` split into numbers (compared by value) and the words between them."""
+    parts = re.split(r"(\d+(?:\.\d+)?(?:e-?\d+)?)", text)
+    return tuple((0, float(s), "") if i % 2 else (1, 0.0, s) for i, s in enumerate(parts))
 
 
 def uses_advisor_data(agent: str) -> bool:
