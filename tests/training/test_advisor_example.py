@@ -59,3 +59,10 @@ def test_the_documented_example_trains_and_is_recorded(example_module, tmp_path)
         run_training(cfg, RUN_HP, {"advisor_noise": [0.0, 0.2]}, [0], out, resume=True,
                      eval_episodes=0, checkpoint_every=0, progress=False)  # fmt: skip
     assert json.loads((out / "run.json").read_text())["status"] == "finished"
+
+
+def test_the_readme_prints_the_same_example():
+    """The README's own-advisor example is this file's, so the test above covers it too."""
+    readme = (DOCS.parents[1] / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    assert example_source() in blocks
