@@ -47,8 +47,12 @@ class Cell:
 
 CELLS = (
     Cell("kinematic", "stable", tuple(KINEMATIC), {"clip_q_target": 1.0}),
-    Cell("kinematic", "paper", (CALIBRATED / "ordering_kinematic",),
-         {"motion": "kinematic", "clip_q_target": 0.0}),
+    Cell(
+        "kinematic",
+        "paper",
+        (CALIBRATED / "ordering_kinematic",),
+        {"motion": "kinematic", "clip_q_target": 0.0},
+    ),
     Cell("mjx", "stable", (CALIBRATED,), {"motion": "mjx", "clip_q_target": 1.0}),
     Cell("mjx", "paper", (CALIBRATED,), {"motion": "mjx", "clip_q_target": 0.0}),
 )

@@ -37,13 +37,11 @@ naming the file, the table and the value: unknown names, values out of range
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import hashlib
 import itertools
 import json
 import math
-import operator
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -53,6 +51,7 @@ from advisor_jax.agent.brax_agents import brax_agent_name
 from advisor_jax.agent.config import HPARAM_NAMES, preset
 from advisor_jax.agent.hparams import HPARAM_DEFAULTS
 from advisor_jax.agent.settings import flat_items
+from advisor_jax.study.expressions import evaluate, names_in
 from advisor_jax.training.population import build_population
 from advisor_jax.training.request import TrainArgs, build_run
 
@@ -157,56 +156,7 @@ class Study:
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-# -- expressions ------------------------------------------------------------------------------
-
-_OPERATORS = {
-    ast.Add: operator.add,
-    ast.Sub: operator.sub,
-    ast.Mult: operator.mul,
-    ast.Div: operator.truediv,
-    ast.USub: operator.neg,
-    ast.UAdd: operator.pos,
-}
-
-
-def names_in(text: str) -> set[str]:
-    """The names an expression reads (a syntax error or another construct: ValueError)."""
-    try:
-        tree = ast.parse(text, mode="eval")
-    except SyntaxError:
-        raise ValueError(f"{text!r} is not an expression") from None
-    out = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Name):
-            out.add(node.id)
-        elif not isinstance(
-            node, (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Constant, ast.Load, *_OPERATORS)
-        ):
-            raise ValueError(f"{text!r}: only numbers, names, + - * / and ( ) are allowed")
-    return out
-
-
-def evaluate(text: str, values: Mapping[str, float]) -> float:
-    """The value of an expression given its names' values."""
-
-    def walk(node):
-        if isinstance(node, ast.Expression):
-            return walk(node.body)
-        if isinstance(node, ast.Constant) and isinstance(node.value, int | float):
-            return float(node.value)
-        if isinstance(node, ast.Name):
-            return float(values[node.id])
-        if isinstance(node, ast.UnaryOp):
-            return _OPERATORS[type(node.op)](walk(node.operand))
-        if isinstance(node, ast.BinOp):
-            left, right = walk(node.left), walk(node.right)
-            if isinstance(node.op, ast.Div) and right == 0:
-                raise ValueError(f"{text!r} divides by zero")
-            return _OPERATORS[type(node.op)](left, right)
-        raise ValueError(f"{text!r}: only numbers, names, + - * / and ( ) are allowed")
-
-    names_in(text)
-    return walk(ast.parse(text, mode="eval"))
+# -- expressions (study/expressions.py) -----------------------------------------------------
 
 
 def resolve(written: Mapping[str, object], known: Mapping[str, float], where: str) -> dict:
