@@ -36,6 +36,7 @@ import os
 import re
 import shutil
 import sys
+import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -187,10 +188,24 @@ def save_step(directory: str | Path, step: int, state: Any, run: dict | None = N
     if failure is not None:
         # Only now, with the manager closed and its writer threads joined, can no thread
         # write into the half-written step again after it is removed.
-        for partial in directory.glob(f"{int(step)}.orbax-checkpoint-tmp*"):
-            shutil.rmtree(partial, ignore_errors=True)
+        _remove_partial_step(directory, int(step))
         raise _write_failure(directory / str(int(step)), failure) from None
     record_checksums(directory / str(int(step)), run)
+
+
+def _remove_partial_step(directory: Path, step: int, tries: int = 50) -> None:
+    """Removes a failed save's temporary folder. A removal can race with a last file that
+    orbax's writer was still closing (the folder is then not empty and stays), so it is
+    repeated until the folder is gone twice in a row, 0.1 s apart."""
+    gone = 0
+    for _ in range(tries):
+        partials = list(directory.glob(f"{step}.orbax-checkpoint-tmp*"))
+        for partial in partials:
+            shutil.rmtree(partial, ignore_errors=True)
+        gone = gone + 1 if not partials else 0
+        if gone == 2:
+            return
+        time.sleep(0.1)
 
 
 def has_checkpoints(directory: str | Path) -> bool:

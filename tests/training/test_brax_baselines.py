@@ -201,7 +201,8 @@ def test_an_interrupted_run_resumes_at_its_first_unfinished_seed(tmp_path, monke
 
     monkeypatch.setattr(brax_run, "train_seed", fake_seed)
     request = BraxRequest("brax-SAC", default_settings("brax-SAC", "quick"), "quick", "training",
-                          10, 0, (0, 1, 2), tmp_path / "run", 0, ("training",), 0)  # fmt: skip
+                          10, 0, "kinematic", (0, 1, 2), tmp_path / "run", 0, ("training",),
+                          0)  # fmt: skip
     with pytest.raises(interrupts.Interrupted) as stop:
         brax_run.run_brax_training(request, progress=False)
     assert "during agent 1 of 3: 1 finished agent saved" in stop.value.detail
