@@ -168,7 +168,7 @@ def resume_record(run_file: Path, summary: dict) -> dict:
     by a version that recorded none)."""
     saved = read_run_json(run_file)
     current = json.loads(json.dumps({"config": summary["config"], "agents": summary["agents"]}))
-    if "advisor" not in saved["config"]:
+    if "advisor" not in saved["config"] and saved.get("kind") != "brax":  # brax: no advisor
         if saved["status"] != "finished":
             raise ValueError(
                 f"cannot resume {run_file.parent}: it was started by a version before plug-in "
