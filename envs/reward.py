@@ -5,7 +5,7 @@ sensors; a model-based controller (``agent/mpc.py``, the MCP + model-free baseli
 docs/baselines.md) only has predicted observations ŝ. ``eq8_from_obs`` is the env's reward
 rewritten on the observation alone, with the same operations in the same order, so on
 real transitions it returns the env's reward bit for bit wherever the observation
-determines it (tested: ``tests/learn/test_dynamics_mpc.py``)::
+determines it (tested: ``tests/agent/test_dynamics_mpc.py``)::
 
     P̂ = clip(P, 0, max_range);  d̂ = max(d, 0);  p = min P̂      (predictions may leave
                                                                 the contract's ranges)

@@ -16,10 +16,10 @@ consecutive builds, i.e. the displacement over about one control period like the
 pose seen twice (same ``t`` and position, a tracker slower than the loop) keeps the last
 velocity instead of dividing by zero.
 
-The zones are the simulator's (``zones.reduce_to_zones``, which the ``physical`` arena runs on
-its beams): tests/runner checks that both give the same bits on any scan without a reading
-exactly on a zone boundary, where the car follows spec.py's rule exactly and the simulator's
-float radians may round to the neighbouring zone (its beams never lie on one).
+The zones are the simulator's rule (``contract/zones.py``, which the ``physical`` arena runs
+on its beams), computed by ``runner/lidar_zones.py`` within the car's time budget;
+tests/contract/test_zones.py proves the two equal on every reading the RPLIDAR can give
+(every angle of its 1/64° grid, zone boundaries included).
 
 Every problem raises ``ObservationError`` with a reason code: ``scan_format``, ``scan_nan``,
 ``scan_empty`` (fewer valid readings than ``min_valid_points``: an empty zone reads max range,
