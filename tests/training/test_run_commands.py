@@ -8,12 +8,12 @@ import json
 
 import numpy as np
 import pytest
-from conftest import TINY, train_tiny
 from rich.console import Console
 
 from advisor_jax.cli.train import written
 from advisor_jax.training import plots, reporting
 from tests.cli.test_main import _run as _cli
+from tests.training.conftest import TINY, train_tiny
 
 EVAL = 8
 

@@ -8,9 +8,9 @@ import sys
 import types
 
 import pytest
-from conftest import RUN_SEEDS, train_tiny
 
 from advisor_jax.training.tracking import make_tracker
+from tests.training.conftest import RUN_SEEDS, train_tiny
 from tests.training.event_files import scalars
 
 
