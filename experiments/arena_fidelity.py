@@ -5,8 +5,10 @@
 Reads kept run data only (trains nothing): the calibrated arena's runs
 (``results/arena_fidelity/run_data``: experiments/studies/arena_calibration.toml,
 ordering.toml, table1_mjx.toml; today's arena at the paper's settings:
-ordering_kinematic.toml), today's arena's Table 1 runs (``results/table1_stable``)
-and the advisor's own evaluations (``results/advisor.json``, ``results/advisor_mjx.json``).
+ordering_kinematic.toml), today's arena's Table 1 runs (``results/table1_stable``),
+the advisor's own evaluations (``results/advisor.json``, ``results/advisor_mjx.json``) and
+the checks of issue 35 item 4 (``results/arena_fidelity/lfd_checks/run_data``:
+experiments/studies/lfd_td3.toml, lfd_checks.toml).
 Per cell of the 2 x 2 design (arena: kinematic robot / MJX robot; settings: ``stable`` / the
 paper's literal Eqs. (2) and (4)) it gives each type's success, collision share and
 collision speed per evaluation arena, and the paired differences ATD3+AfDP − LfD and
@@ -29,6 +31,7 @@ from advisor_jax.stats import Interval, format_interval, t_interval
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 CALIBRATED = RESULTS / "arena_fidelity" / "run_data"
+LFD_CHECKS = RESULTS / "arena_fidelity" / "lfd_checks" / "run_data"
 KINEMATIC = [RESULTS / "table1_stable" / "run_data", RESULTS / "table1_stable" / "run_data_d2"]
 TYPES = ("ATD3+AfDP", "LfD", "MCP+MF", "DDPG")
 PAIRS = (("ATD3+AfDP", "LfD"), ("ATD3+AfDP", "DDPG"))
@@ -98,6 +101,31 @@ def cell_record(cell: Cell) -> dict:
     return {**record, "kept": True}
 
 
+def lfd_checks_record() -> dict:
+    """Issue 35 item 4 in the calibrated arena at `stable`: LfD on ATD3+AfDP's learner (TD3,
+    policy delay 2) and on fewer demonstrations D, each paired by seed with the ordering
+    study's ATD3+AfDP and LfD (DDPG, D = 250) on the same evaluation episodes."""
+    dirs = [CALIBRATED / "ordering", *sorted(p for p in LFD_CHECKS.glob("*") if p.is_dir())]
+    points, _ = pool(load_runs(dirs))
+    where = {"motion": "mjx", "clip_q_target": 1.0}
+    atd3 = [p for p in points if _matches(p, "ATD3+AfDP", where)]
+    lfd = [p for p in points if p.agent == "LfD" and not p.snapshot and p.budget == 500
+           and all(p.settings.get(k) == v for k, v in where.items())]  # fmt: skip
+    reference = [p for p in lfd if p.settings["algo"] == "ddpg"
+                 and p.settings["demo_episodes"] == 250]  # fmt: skip
+    if len(atd3) != 1 or len(reference) != 1:
+        raise ValueError(f"{dirs}: expected one ATD3+AfDP and one LfD (DDPG, D = 250) point")
+    checks = [p for p in lfd if p is not reference[0]]
+    rows = {p.text(): _row(p) for p in [atd3[0], reference[0], *checks]}
+    pairs = {}
+    for p in checks:
+        for x, y in ((atd3[0], p), (p, reference[0])):
+            pairs[f"{x.text()} - {y.text()}"] = {a: comparison(x, y, a) for a in ARENAS}
+    demos = sorted(p.settings["demo_episodes"] for p in checks if p.settings["algo"] == "ddpg")
+    runs = sorted({str(s.run.path.relative_to(ROOT)) for p in checks for s in p.seeds.values()})
+    return {"rows": rows, "pairs": pairs, "demo_episodes_run": demos, "runs": runs}
+
+
 def advisor_rows() -> dict:
     """The advisor's own evaluation (500 episodes per arena) under each motion model."""
     out = {}
@@ -151,6 +179,20 @@ def markdown(record: dict) -> list[str]:
             pairs.append((cell["arena"], cell["settings"], name, *cells))
     lines += markdown_table(("arena", "settings", "difference", "training env",
                              "validation env"), pairs, "lllr")  # fmt: skip
+    lines += ["", "## Other explanations (issue 35 item 4): calibrated arena, `stable`", ""]
+    checks = record["lfd_checks"]
+    rows = [(name, row["seeds"], f"{_pct(row['training']['success'])} / "
+             f"{_pct(row['validation']['success'])}")
+            for name, row in checks["rows"].items()]  # fmt: skip
+    lines += markdown_table(("agent", "seeds", "success % (train / val)"), rows, "lr")
+    lines += [""]
+    pairs = [(name, *[d[a]["text"] if d[a] else "–" for a in ARENAS])
+             for name, d in checks["pairs"].items()]  # fmt: skip
+    lines += markdown_table(("difference (success points, seed by seed)", "training env",
+                             "validation env"), pairs, "lr")  # fmt: skip
+    if not checks["demo_episodes_run"]:
+        lines += ["", "The demonstrations' share D in {10, 50} "
+                  "(experiments/studies/lfd_checks.toml) has not been run."]  # fmt: skip
     lines += ["", f"Made by `{record['command']}` on {record['date']} from kept run data; "
               "the runs of each cell are listed in `arena_fidelity.json`."]  # fmt: skip
     return lines
@@ -168,6 +210,7 @@ def main(out: Path = RESULTS) -> dict:
         ),
         "cells": [cell_record(c) for c in CELLS],
         "advisor": advisor_rows(),
+        "lfd_checks": lfd_checks_record(),
         "paper": PAPER,
         "date": datetime.date.today().isoformat(),
         "command": "python experiments/arena_fidelity.py",

@@ -135,6 +135,7 @@ class Plan:
     caps: tuple[int, ...]  # agents per piece, per group
     pieces: tuple[Piece, ...]
     explained: tuple[str, ...]  # how it was decided, one line each
+    max_agents: int | None = None  # --max-agents, part of how the pieces were cut
 
     def makespan(self) -> float | None:
         """Seconds until the last device is done, pieces placed longest first."""
@@ -246,7 +247,7 @@ def plan_study(
             break
         counts, pieces = trial, split
     explained = _explain(study, device, devices, configs, caps, table)
-    return Plan(study.digest, device, devices, tuple(caps), tuple(pieces), explained)
+    return Plan(study.digest, device, devices, tuple(caps), tuple(pieces), explained, max_agents)
 
 
 def _explain(study, device, devices, configs, caps, table) -> tuple[str, ...]:

@@ -48,10 +48,12 @@ def run_status(path: Path) -> str | None:
         return "running"
 
 
-def piece_command(study: Study, out: Path, index: int | str) -> str:
-    return shlex.join(
-        ["advisor-jax", "sweep", str(study.path), "--out", str(out), "--piece", str(index)]
-    )
+def piece_command(study: Study, out: Path, index: int | str, plan: Plan) -> str:
+    """The command that trains piece ``index``, with the options that cut the pieces."""
+    words = ["advisor-jax", "sweep", str(study.path), "--out", str(out), "--piece", str(index)]
+    if plan.max_agents is not None:
+        words += ["--max-agents", str(plan.max_agents)]
+    return shlex.join(words)
 
 
 # -- the plan on disk -----------------------------------------------------------------------
@@ -66,6 +68,7 @@ def save_plan(out: Path, study: Study, plan: Plan) -> None:
         "devices": plan.devices,
         "caps": plan.caps,
         "explained": plan.explained,
+        "max_agents": plan.max_agents,
         "pieces": [{**dataclasses.asdict(p), "agents": p.agents} for p in plan.pieces],
     }
     atomic_write_json(out / "plan.json", record)
@@ -95,6 +98,7 @@ def load_plan(out: Path, study: Study) -> Plan | None:
         tuple(record["caps"]),
         pieces,
         tuple(record["explained"]),
+        record.get("max_agents"),
     )
 
 
@@ -119,7 +123,7 @@ def run_piece(study: Study, out: Path, plan: Plan, index: int, progress: bool = 
     grid = {n: sorted({p[n] for p in points}) for n in group.names}
     meta = {
         "preset": study.preset,
-        "command": piece_command(study, out, index),
+        "command": piece_command(study, out, index, plan),
         "study": {
             "name": study.name,
             "file": str(study.path),
@@ -282,7 +286,7 @@ def slurm_script(study: Study, out: Path, plan: Plan, extra: list[str]) -> str:
         "# interrupted one resumes from its checkpoint, so the same script can be resubmitted.",
         "set -euo pipefail",
         f"cd {shlex.quote(str(Path.cwd()))}  # where the study and --out paths start",
-        piece_command(study, out, "$SLURM_ARRAY_TASK_ID").replace(
+        piece_command(study, out, "$SLURM_ARRAY_TASK_ID", plan).replace(
             "'$SLURM_ARRAY_TASK_ID'", '"$SLURM_ARRAY_TASK_ID"'
         ),
     ]

@@ -25,6 +25,18 @@ def test_seeds_of_one_setting_pool_across_runs_and_a_repeated_seed_counts_once(t
     assert any("seed 3" in n and "counted once" in n for n in notes)
 
 
+def test_labels_name_the_learner_and_leave_out_what_a_type_does_not_read(tmp_path):
+    write_run(tmp_path, "a", "LfD", [0], [0.8])
+    write_run(tmp_path, "b", "LfD", [0], [0.7], algo="td3", policy_delay=2)
+    ddpg = write_run(tmp_path, "c", "DDPG", [0], [0.6])
+    summary = json.loads((ddpg / "run.json").read_text())
+    for row in summary["agents"]:  # a study's per-point value of a baseline's setting
+        row.update(demo_episodes=100.0, random_episodes=20.0)
+    (ddpg / "run.json").write_text(json.dumps(summary))
+    points, _ = pool(load_runs([tmp_path]))
+    assert {p.text() for p in points} == {"LfD", "LfD, algo=td3, policy_delay=2", "DDPG"}
+
+
 def test_unfinished_runs_are_left_out_with_a_note(tmp_path):
     write_run(tmp_path, "a", "DDPG", [0], [0.8])
     write_run(tmp_path, "b", "DDPG", [1], [0.7], status="interrupted")

@@ -99,6 +99,20 @@ def test_pieces_spread_over_devices_down_to_the_minimum(tmp_path):
     assert max(p.agents for p in capped.pieces) <= 20
 
 
+def test_a_piece_command_keeps_the_cap_that_cut_the_pieces(tmp_path):
+    from advisor_jax.study.sweep import load_plan, piece_command, save_plan
+
+    s = _study(tmp_path)
+    big = planning.Device("gpu", 80 * GIB, 0)
+    capped = planning.plan_study(s, big, max_agents=20)
+    save_plan(tmp_path, s, capped)
+    kept = load_plan(tmp_path, s)
+    assert kept.max_agents == 20 and kept.pieces == capped.pieces
+    assert piece_command(s, tmp_path, 3, kept).endswith("--piece 3 --max-agents 20")
+    free = planning.plan_study(s, big)
+    assert piece_command(s, tmp_path, 0, free).endswith("--piece 0")
+
+
 ROW = {"device": "G", "precision": "fp32", "size": "paper"}
 TABLE = {
     "rows": [{**ROW, "agents": 1, "agent_steps_per_s": 100.0},
