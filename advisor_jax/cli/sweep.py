@@ -55,6 +55,10 @@ class SweepArgs:
     (e.g. "NVIDIA H100 80GB HBM3")."""
     max_agents: int | None = None
     """At most this many agents per piece (default: as many as fit one device)."""
+    per_device: int = 1
+    """Pieces trained at once on each device, each in its own process with that share of
+    the device's memory (small pieces leave a GPU idle between kernels; docs/sweeps.md).
+    A kept plan keeps its own --max-agents and --per-device."""
     no_progress: bool = False
     """Hide the progress display."""
 
@@ -72,6 +76,9 @@ def _plan(args: SweepArgs, study):
         device, count = local[0], args.devices or len(local)
     if count < 1:
         raise StudyError(f"--devices {count}: need at least one device")
+    if args.per_device < 1:
+        raise StudyError(f"--per-device {args.per_device}: need at least one piece per device")
+    device = dataclasses.replace(device, processes=args.per_device)
     table = throughput.load_table()
     return planning.plan_study(study, device, count, args.max_agents, table), False
 
@@ -117,6 +124,11 @@ def sweep_command(args: SweepArgs) -> None:
     if not console.is_terminal:
         console = Console(stderr=True, width=160)
     plan, kept = _plan(args, study)
+    if args.slurm is not None and plan.device.processes > 1:
+        raise StudyError(
+            f"--per-device {plan.device.processes} is for local runs: a Slurm task trains one "
+            "piece; plan this --out without --per-device"
+        )
     if args.dry_run:
         print_plan(console, study, plan, args.out, kept)
         return

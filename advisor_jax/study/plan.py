@@ -8,7 +8,8 @@ most as many agents as fit one device:
     bytes per agent = replay (capacity × 46 floats: s, a, a_adv, r, s', terminal)
                     + networks × 5 (weights, targets, Adam's two moments, gradients)
                     + activations (batch × the widths of the actor and every critic)
-    agents per device = (device memory × XLA's share − PROCESS_OVERHEAD) / bytes per agent
+    agents per device = (device memory × XLA's share / processes − PROCESS_OVERHEAD)
+                        / bytes per agent
 
 (4 bytes a number). The formula errs high: at ``paper`` sizes it gives 75.6 MB per agent,
 where the measured peak grows by 54-66 MB per agent (``results/bench_train_largest/``).
@@ -16,6 +17,12 @@ Groups are then split further, down to ``MIN_AGENTS`` per piece, while splitting
 longest piece's group shortens the study on the devices at hand (pieces put on devices
 longest first). Times come from ``throughput`` (measured rates, not guesses), or are
 left out where nothing was measured for that device.
+
+``processes`` > 1 (``--per-device``) trains that many pieces on each device at once, each
+in its own process with that share of XLA's memory: small pieces leave a GPU idle between
+kernels (results/bench_train_motion/: 8,505 agent env-steps/s at 16 agents, 12,474 at 64),
+and pieces of different groups cannot share one population. The time estimate assumes no
+gain from it (a device's pieces as if one after another), so it errs long.
 """
 
 from __future__ import annotations
@@ -40,19 +47,26 @@ TRANSITION_FLOATS = 2 * spec.OBS_SIZE + 2 * spec.ACTION_SIZE + 2
 
 @dataclasses.dataclass(frozen=True)
 class Device:
-    """A device that trains one piece at a time; ``index`` is its CUDA index (None: CPU)."""
+    """A device that trains ``processes`` pieces at a time; ``index`` is its CUDA index
+    (None: CPU)."""
 
     kind: str
     memory: int  # bytes
     index: int | None = None
+    processes: int = 1
+
+    @property
+    def share(self) -> float:
+        """The fraction of its memory one population's process may take."""
+        if self.index is None and self.kind == "cpu":
+            return CPU_SHARE / self.processes
+        share = float(os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION", GPU_SHARE))
+        return share / self.processes
 
     @property
     def usable(self) -> int:
         """Bytes one population may take on it."""
-        if self.index is None and self.kind == "cpu":
-            return int(self.memory * CPU_SHARE)
-        share = float(os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION", GPU_SHARE))
-        return int(self.memory * share)
+        return int(self.memory * self.share)
 
 
 def local_devices() -> list[Device]:
@@ -150,7 +164,8 @@ def _work(piece: Piece) -> float:
 
 
 def _makespan(pieces, devices: int) -> float:
-    """When the last of ``devices`` is done, pieces placed longest first on the least loaded."""
+    """When the last of ``devices`` is done, pieces placed longest first on the least loaded
+    (a device's pieces as if one after another, also with ``--per-device``)."""
     loads = [0.0] * devices
     for p in sorted(pieces, key=lambda p: -_work(p)):
         loads[loads.index(min(loads))] += _work(p)
@@ -215,6 +230,7 @@ def plan_study(
                 f"{study.path}: one agent of {group.agent} needs {need:.1f} GiB with the "
                 f"process, more than the {device.usable / 2**30:.1f} GiB usable on "
                 f"{device.kind}; lower buffer_size or batch_size under [static]"
+                + ("" if device.processes == 1 else " or --per-device")
             )
         caps.append(min(fit, max_agents or fit))
         total = max(1, len(group.points)) * len(study.seeds)
@@ -252,9 +268,10 @@ def plan_study(
 
 def _explain(study, device, devices, configs, caps, table) -> tuple[str, ...]:
     gib = 2**30
+    each = "one process" if device.processes == 1 else f"each of {device.processes} processes"
     lines = [
         f"devices: {devices} × {device.kind}, {device.memory / gib:.1f} GiB each, "
-        f"{device.usable / gib:.1f} GiB usable by one process"
+        f"{device.usable / gib:.1f} GiB usable by {each}"
         + (" (XLA's share)" if device.index is not None or device.kind != "cpu" else "")
     ]
     seen = set()
@@ -288,6 +305,12 @@ def _explain(study, device, devices, configs, caps, table) -> tuple[str, ...]:
             "agent env-steps/s of ATD3+AfDP at that population size × the type's relative "
             f"speed) + {throughput.COMPILE_S:.0f} s per piece; rates from "
             f"{throughput.TABLE.name} (results/bench_train*.json, kept Table 1/2 runs)"
+            + (
+                ""
+                if device.processes == 1
+                else "; a device's pieces counted one after "
+                "another (no gain assumed from running them at once)"
+            )
         )
         for kind, precision, preset in missing:
             lines.append(

@@ -5,8 +5,9 @@
     DIR/logs/<piece>.log   the output of the worker that trained it
 
 ``run_local`` starts one worker process per free device (``advisor-jax sweep STUDY --out DIR
---piece I``, pinned with ``CUDA_VISIBLE_DEVICES``; on a CPU-only machine one at a time) and
-shows one progress display for the whole study, read from each piece's ``train_log.jsonl``.
+--piece I``, pinned with ``CUDA_VISIBLE_DEVICES``; on a CPU-only machine one at a time), or
+``--per-device`` K of them, each with 1/K of XLA's memory share, and shows one progress
+display for the whole study, read from each piece's ``train_log.jsonl``.
 ``run_piece`` is what a worker (or a Slurm array task) does: nothing for a finished piece,
 ``--resume`` for one started before (a checkpoint, or afresh if it was killed before its
 first), a fresh run otherwise. Pieces never talk to each other; DIR collects them.
@@ -53,6 +54,8 @@ def piece_command(study: Study, out: Path, index: int | str, plan: Plan) -> str:
     words = ["advisor-jax", "sweep", str(study.path), "--out", str(out), "--piece", str(index)]
     if plan.max_agents is not None:
         words += ["--max-agents", str(plan.max_agents)]
+    if plan.device.processes > 1:
+        words += ["--per-device", str(plan.device.processes)]
     return shlex.join(words)
 
 
@@ -183,8 +186,9 @@ def run_local(
     progress: bool = True,
     console: Console | None = None,
 ) -> dict[int, str]:
-    """Every unfinished piece, one worker per device at a time, longest first; returns
-    {piece: "finished" | "failed"}. Ctrl-C stops the workers (each checkpoints)."""
+    """Every unfinished piece, ``plan.device.processes`` workers per device at a time,
+    longest first; returns {piece: "finished" | "failed"}. Ctrl-C stops the workers (each
+    checkpoints)."""
     console = console or Console(stderr=True)
     (out / "logs").mkdir(parents=True, exist_ok=True)
     episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
@@ -193,7 +197,9 @@ def run_local(
     queue = sorted(
         (p for p in plan.pieces if p.index not in result), key=lambda p: -(p.seconds or p.agents)
     )
-    free, running = list(devices), []
+    processes = plan.device.processes
+    free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
+    running = []
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -244,6 +250,8 @@ def _start(study, out, piece, device, bar, total) -> _Worker:
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.pathsep.join(paths))
     if device.index is not None:
         env["CUDA_VISIBLE_DEVICES"] = str(device.index)
+        if device.processes > 1:  # K workers share the GPU: each preallocates 1/K of the share
+            env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{device.share:.4f}"
     command = [
         sys.executable,
         "-m",

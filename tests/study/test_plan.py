@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import textwrap
 
 import pytest
@@ -111,6 +112,12 @@ def test_a_piece_command_keeps_the_cap_that_cut_the_pieces(tmp_path):
     assert piece_command(s, tmp_path, 3, kept).endswith("--piece 3 --max-agents 20")
     free = planning.plan_study(s, big)
     assert piece_command(s, tmp_path, 0, free).endswith("--piece 0")
+    shared = planning.plan_study(s, dataclasses.replace(big, processes=4))
+    assert piece_command(s, tmp_path, 1, shared).endswith("--piece 1 --per-device 4")
+    assert shared.caps[0] < free.caps[0] // 3  # a quarter of the memory, less the overhead
+    (tmp_path / "shared").mkdir()
+    save_plan(tmp_path / "shared", s, shared)
+    assert load_plan(tmp_path / "shared", s).device.processes == 4
 
 
 ROW = {"device": "G", "precision": "fp32", "size": "paper"}

@@ -87,3 +87,55 @@ def test_a_piece_out_of_range_names_the_plan(study_file, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["sweep", str(study_file), "--out", str(tmp_path / "o"), "--piece", "7"])
     assert "--piece 7: the plan has pieces 0-1" in capsys.readouterr().err
+
+
+def test_per_device_shares_the_memory_and_is_kept_with_the_plan(study_file, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    args = ["sweep", str(study_file), "--out", str(out), "--device-memory", "80"]
+    main([*args, "--dry-run", "--per-device", "4"])
+    err = " ".join(capsys.readouterr().err.split())
+    assert "15.0 GiB usable by each of 4 processes" in err  # 80 GiB x 0.75 / 4
+    assert "no gain assumed" in err
+    for bad, message in ((["--per-device", "0"], "--per-device 0: need at least one"),
+                         (["--per-device", "2", "--slurm", str(tmp_path / "j.sh")],
+                          "--per-device 2 is for local runs")):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_:
+            main([*args, *bad])
+        assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not out.exists()  # refused before the plan was written
+
+
+def test_run_local_fills_each_device_with_per_device_workers(study_file, tmp_path, monkeypatch):
+    """Two devices x two processes: four pieces at once, each pinned to its GPU with half
+    of XLA's memory share; the others wait for a free slot."""
+    from advisor_jax.study import plan as planning
+
+    study = load_study(study_file)
+    gpu = planning.Device("G", 80 << 30, 0, processes=2)
+    plan = planning.plan_study(study, gpu, devices=2, max_agents=1)  # 6 pieces of 1 agent
+    started, live, most = [], [], []
+
+    class FakeProcess:  # a worker that finishes at its second poll
+        def __init__(self, command, env, **_):
+            started.append(env)
+            live.append(self)
+            most.append(len(live))
+            self.returncode, self.polls = None, 0
+
+        def poll(self):
+            self.polls += 1
+            if self.polls == 2:
+                self.returncode = 0
+                live.remove(self)
+            return self.returncode
+
+    monkeypatch.setattr(sweep.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(sweep.time, "sleep", lambda _: None)
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    devices = [planning.Device("G", 80 << 30, 0), planning.Device("G", 80 << 30, 1)]
+    (tmp_path / "o").mkdir()
+    result = sweep.run_local(study, tmp_path / "o", plan, devices, progress=False)
+    assert sorted(result) == list(range(len(plan.pieces))) and set(result.values()) == {"finished"}
+    assert len(started) == len(plan.pieces) == 6 and max(most) == 4
+    assert [env["CUDA_VISIBLE_DEVICES"] for env in started[:4]] == ["0", "1", "0", "1"]
+    assert {env["XLA_PYTHON_CLIENT_MEM_FRACTION"] for env in started} == {"0.3750"}
