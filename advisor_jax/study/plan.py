@@ -202,11 +202,11 @@ def _seconds(study: Study, group, cfg, agents: int, device: Device, table) -> fl
     if table is None:
         return None
     rate = throughput.agent_steps_per_s(
-        table, device.kind, cfg.agent.precision, study.preset, agents
+        table, device.kind, cfg.agent.precision, study.preset, agents, cfg.motion
     )
     if rate is None:
         return None
-    kind = throughput.agent_type(table, group.agent, cfg.arena)
+    kind = throughput.agent_type(table, group.agent, cfg.arena, cfg.motion)
     steps = agents * cfg.episodes * kind["steps_per_episode"]
     return steps / (rate * kind["relative_speed"]) + throughput.COMPILE_S
 
@@ -303,8 +303,9 @@ def _explain(study, device, devices, configs, caps, table) -> tuple[str, ...]:
         lines.append(
             "time: agents × episodes × each type's mean steps per episode / (the measured "
             "agent env-steps/s of ATD3+AfDP at that population size × the type's relative "
-            f"speed) + {throughput.COMPILE_S:.0f} s per piece; rates from "
-            f"{throughput.TABLE.name} (results/bench_train*.json, kept Table 1/2 runs)"
+            f"speed × the motion model's) + {throughput.COMPILE_S:.0f} s per piece; rates "
+            f"from {throughput.TABLE.name} (results/bench_train*.json, kept Table 1/2 runs, "
+            "results/bench_train_motion)"
             + (
                 ""
                 if device.processes == 1

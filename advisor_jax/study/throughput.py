@@ -10,7 +10,13 @@ The estimate is read from a table derived from measurements kept in ``results/``
 * each agent type's speed relative to ATD3+AfDP and its mean training-episode length, per
   training arena, from kept runs that trained every type alike on one device
   (``results/table1_stable/run_data``, ``results/table2/run_data``): the DDPG family
-  updates its actor at every step, the baselines run extra phases.
+  updates its actor at every step, the baselines run extra phases;
+* for the MJX robot (``motion = "mjx"``): its full step's speed relative to the kinematic
+  robot's at the same population size, measured in one command
+  (``results/bench_train_motion/``), and each type's mean training-episode length from the
+  kept runs in the calibrated arena (``results/arena_fidelity/run_data``,
+  ``results/table2_calibrated/run_data``; their speeds are not used: those pieces shared
+  their GPUs).
 
     python -m advisor_jax.study.throughput       # writes results/sweep_throughput.json
 
@@ -33,6 +39,8 @@ TABLE = RESULTS / "sweep_throughput.json"
 REFERENCE_TYPE = "ATD3+AfDP"
 SIZE_OF_PRESET = {"paper": "paper", "stable": "paper", "physical": "physical", "quick": "quick"}
 TYPE_RUNS = (("training", "table1_stable"), ("physical", "table2"))  # (arena, results folder)
+MOTION_BENCH = "bench_train_motion"  # bench_train_<motion>.json, one command per motion
+MOTION_RUNS = ("arena_fidelity/run_data", "table2_calibrated/run_data")
 COMPILE_S = 60.0  # compile, evaluation and files of one piece (bench_train's warm-up: 15-48 s)
 
 
@@ -91,6 +99,53 @@ def _type_rows(run_root: Path) -> dict:
     return out
 
 
+def _motion_factors(folder: Path) -> dict:
+    """{motion: [{agents, precision, factor}]}: agent env-steps/s under each motion model
+    relative to ``kinematic`` at the same population size and precision."""
+    reports = {p.stem.removeprefix("bench_train_"): json.loads(p.read_text())
+               for p in sorted(folder.glob("bench_train_*.json"))}  # fmt: skip
+    base = reports.get("kinematic")
+    if base is None:
+        return {}
+    rate = {(r["agents"], r["precision"]): r["agent_steps_per_s"] for r in base["rows"]}
+    out = {}
+    for motion, report in reports.items():
+        if motion == "kinematic":
+            continue
+        out[motion] = [
+            {"agents": r["agents"], "precision": r["precision"],
+             "factor": r["agent_steps_per_s"] / rate[(r["agents"], r["precision"])],
+             "source": str((folder / f"bench_train_{motion}.json").relative_to(RESULTS.parent))}
+            for r in report["rows"]
+            if (r["agents"], r["precision"]) in rate and r.get("devices", 1) == 1
+        ]  # fmt: skip
+    return out
+
+
+def _motion_lengths(roots: list[Path]) -> dict:
+    """{motion: {arena: {agent: mean steps per training episode}}} of kept runs under
+    ``roots`` that moved another robot than the kinematic one."""
+    from advisor_jax.analysis.runs import load_runs
+
+    lengths: dict[tuple, list[np.ndarray]] = {}
+    for root in roots:
+        if not root.is_dir():
+            continue
+        for run in load_runs([root]).runs:
+            motion = run.config.get("motion", "kinematic")
+            if motion == "kinematic" or ":" in motion:  # the calibrated models only
+                continue
+            length = np.asarray(run.metrics()["length"], np.float64)
+            key = (motion, run.config.get("arena", "training"), run.agent)
+            lengths.setdefault(key, []).append(length[length > 0])
+    out: dict = {}
+    for (motion, arena, agent), found in sorted(lengths.items()):
+        out.setdefault(motion, {}).setdefault(arena, {})[agent] = float(
+            np.concatenate(found).mean()
+        )
+    return out
+
+
 def derive(results: Path = RESULTS) -> dict:
     """The table written to ``sweep_throughput.json``."""
     paths = sorted(results.glob("bench_train*.json")) + sorted(
@@ -103,6 +158,8 @@ def derive(results: Path = RESULTS) -> dict:
         "agent_types": {
             arena: _type_rows(results / folder / "run_data") for arena, folder in TYPE_RUNS
         },
+        "motion_factors": _motion_factors(results / MOTION_BENCH),
+        "motion_steps_per_episode": _motion_lengths([results / p for p in MOTION_RUNS]),
     }
 
 
@@ -111,11 +168,30 @@ def load_table(path: Path = TABLE) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
+def motion_factor(table: dict, motion: str, precision: str, agents: int) -> float:
+    """The full step's speed under ``motion`` relative to the kinematic robot's, at
+    ``agents`` (interpolated in log agents, clamped; measured on one device kind and used
+    for every kind); 1 for ``kinematic`` and where nothing was measured."""
+    rows = [r for r in table.get("motion_factors", {}).get(motion.partition(":")[0], [])
+            if r["precision"] == precision]  # fmt: skip
+    if not rows:
+        return 1.0
+    rows.sort(key=lambda r: r["agents"])
+    xs = np.log([r["agents"] for r in rows])
+    return float(np.interp(math.log(max(agents, 1)), xs, [r["factor"] for r in rows]))
+
+
 def agent_steps_per_s(
-    table: dict, device: str, precision: str, preset: str, agents: int
+    table: dict,
+    device: str,
+    precision: str,
+    preset: str,
+    agents: int,
+    motion: str = "kinematic",
 ) -> float | None:
     """Interpolated (in log agents, clamped at the ends) env-steps/s of ATD3+AfDP for a
-    population of ``agents`` on one ``device``; None where nothing was measured."""
+    population of ``agents`` on one ``device``, times ``motion_factor``; None where nothing
+    was measured."""
     size = SIZE_OF_PRESET.get(preset)
     rows = [
         r
@@ -126,16 +202,17 @@ def agent_steps_per_s(
         return None
     xs = np.log([r["agents"] for r in rows])
     ys = np.array([r["agent_steps_per_s"] for r in rows])
-    return float(np.interp(math.log(max(agents, 1)), xs, ys))
+    rate = float(np.interp(math.log(max(agents, 1)), xs, ys))
+    return rate * motion_factor(table, motion, precision, agents)
 
 
-def agent_type(table: dict, agent: str, arena: str) -> dict:
+def agent_type(table: dict, agent: str, arena: str, motion: str = "kinematic") -> dict:
     """``relative_speed`` and ``steps_per_episode`` of ``agent`` trained in ``arena`` (the
     training arena's for other simulated arenas; ATD3+AfDP's where the kept runs lack that
-    type)."""
+    type); under another motion model, its episodes' length there where kept runs have it."""
     by_arena = table.get("agent_types", {})
     types = by_arena.get(arena) or by_arena.get("training", {})
-    return (
+    row = (
         types.get(agent)
         or types.get(REFERENCE_TYPE)
         or {
@@ -143,6 +220,11 @@ def agent_type(table: dict, agent: str, arena: str) -> dict:
             "steps_per_episode": 100.0,
         }
     )
+    by_motion = table.get("motion_steps_per_episode", {}).get(motion.partition(":")[0], {})
+    lengths = by_motion.get(arena) or by_motion.get("training", {})
+    if agent in lengths:
+        row = {**row, "steps_per_episode": lengths[agent]}
+    return row
 
 
 if __name__ == "__main__":

@@ -143,3 +143,24 @@ def test_time_from_the_measured_rate_and_the_type(tmp_path):
     unknown = planning.plan_study(s, planning.Device("H", 80 * GIB, 0), table=TABLE)
     assert unknown.makespan() is None
     assert "nothing measured for H, fp32, --preset paper" in " ".join(unknown.explained)
+
+
+def test_time_under_the_mjx_robot_uses_its_measured_speed_and_episode_length(tmp_path):
+    from advisor_jax.study import throughput
+
+    table = {**TABLE,
+             "motion_factors": {"mjx": [{"agents": 1, "precision": "fp32", "factor": 0.5},
+                                        {"agents": 16, "precision": "fp32", "factor": 0.75}]},
+             "motion_steps_per_episode": {"mjx": {"training": {"ADDPG+AfD": 80.0}}}}  # fmt: skip
+    assert throughput.motion_factor(table, "mjx", "fp32", 4) == pytest.approx(0.625)  # log mid
+    assert throughput.motion_factor(table, "mjx:wheel_torque_max=0.5", "fp32", 64) == 0.75
+    assert throughput.motion_factor(table, "kinematic", "fp32", 4) == 1.0
+    assert throughput.motion_factor(table, "mjx", "bf16", 4) == 1.0  # not measured: as is
+    assert throughput.agent_type(table, "ADDPG+AfD", "training", "mjx") == {
+        "relative_speed": 0.5, "steps_per_episode": 80.0}  # fmt: skip
+    assert throughput.agent_type(table, "DDPG", "training", "mjx")["steps_per_episode"] == 100.0
+    s = _study(tmp_path, grid="[0]", extra='motion = "mjx"')
+    (piece,) = planning.plan_study(s, planning.Device("G", 80 * GIB, 0), table=table).pieces
+    steps = 16 * 40 * 80.0  # agents x episodes x the mjx robot's steps per episode
+    rate = 1600.0 * 0.75 * 0.5  # ATD3+AfDP's rate x the motion factor x the type's speed
+    assert piece.seconds == pytest.approx(steps / rate + throughput.COMPILE_S)
