@@ -135,7 +135,7 @@ def test_a_sonar_export_is_refused_in_one_line(tmp_path, capsys):
     env = envs.make_env("training")
     params = init_actor(make_actor(HIDDEN), jax.random.PRNGKey(1))
     out = tmp_path / "sonar"
-    obs = np.asarray(env.reset(jax.random.PRNGKey(0)).obs)[None]
+    obs = np.asarray(jax.jit(env.reset)(jax.random.PRNGKey(0)).obs)[None]
     export_policy(params, out, actor_hidden=HIDDEN, env_meta=env.metadata(),
                   config_meta={"agent": "random"}, golden_obs=obs)  # fmt: skip
     assert car.main([str(out), "--sim"]) == 2
