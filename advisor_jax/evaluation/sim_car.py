@@ -22,7 +22,10 @@ thresholds at zero): its auto-reset would move the car.
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -54,15 +57,9 @@ class SimulatedCar:
 
     def __init__(self, policy, seed: int = 0):
         meta = policy.env
-        env = envs.make_env(
-            meta["arena"],
-            motion=meta.get("motion", "kinematic"),  # as the policy was trained
-            omega_max=policy.omega_max,
-            max_episode_steps=NO_TIME_LIMIT,
-            goal_tolerance=1e-9,  # the runner decides goal and collision, as on the car
-            collision_distance=0.0,
-            footprint_collision=False,
-        )
+        # as the policy was trained
+        sim = _simulator(meta["arena"], meta.get("motion", "kinematic"), policy.omega_max)
+        env = sim.env
         if env.rig.kind != "lidar":
             raise ValueError(
                 f"{policy.directory} was trained in the {meta['arena']!r} arena (16 sonar "
@@ -75,10 +72,9 @@ class SimulatedCar:
         # The drive model the runner converts (V, ω) with (``drive`` of the options, else a
         # differential drive as wide as the robot); ``send`` inverts it.
         self.drive = DiffDrive(track_width=2 * float(meta["robot_radius"]))
-        self._readings = jax.jit(env.sensor_readings)
-        self._step = jax.jit(env.step)
+        self._readings, self._step = sim.readings, sim.step
         self._angles = lidar_angles_cw(env)
-        self.state = jax.jit(env.reset)(jax.random.PRNGKey(seed))
+        self.state = sim.reset(jax.random.PRNGKey(seed))
         self.goal = tuple(float(g) for g in self.state.goal)
         self.t = 0.0  # the clock: simulated seconds
         self._t_env = 0.0  # time the env has been stepped to
@@ -122,6 +118,29 @@ class SimulatedCar:
 
     def close(self) -> None:
         self.stop()
+
+
+class _Simulator(NamedTuple):
+    env: envs.NavEnv
+    readings: Callable  # jit(env.sensor_readings)
+    step: Callable  # jit(env.step)
+    reset: Callable  # jit(env.reset)
+
+
+@functools.lru_cache(maxsize=4)
+def _simulator(arena: str, motion: str, omega_max: float) -> _Simulator:
+    """The NavEnv of the simulated car and its jitted functions, built once per process
+    for each (arena, motion, ω_max): cars of further seeds reuse the compiled programs."""
+    env = envs.make_env(
+        arena,
+        motion=motion,
+        omega_max=omega_max,
+        max_episode_steps=NO_TIME_LIMIT,
+        goal_tolerance=1e-9,  # the runner decides goal and collision, as on the car
+        collision_distance=0.0,
+        footprint_collision=False,
+    )
+    return _Simulator(env, jax.jit(env.sensor_readings), jax.jit(env.step), jax.jit(env.reset))
 
 
 class _Source:

@@ -298,7 +298,10 @@ def test_bf16_learner_computes_in_bf16_and_keeps_fp32_state(agents, random_batch
         jax.jit(learner.critic_step)(state, batch, key, HP),
         fp32.critic_step(state, batch, key, HP),
     )
-    (s16, a16), (s32, a32) = learner.actor_step(s16, batch, HP), fp32.actor_step(s32, batch, HP)
+    (s16, a16), (s32, a32) = (  # jitted: eagerly the bf16 step compiles op by op
+        jax.jit(learner.actor_step)(s16, batch, HP),
+        fp32.actor_step(s32, batch, HP),
+    )
     assert all(x.dtype == jnp.float32 for x in jax.tree.leaves(s16) if x.dtype.kind == "f")
     for name in ("loss/critic", "q/mean", "q/target", "loss/actor"):
         m_bf16, m_fp32 = {**m16, **a16}[name], {**m32, **a32}[name]

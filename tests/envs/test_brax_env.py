@@ -57,8 +57,8 @@ def test_step_is_the_navenv_step(brax_env):
     """The same function, not a copy: BraxNavEnv.step's state is NavEnv.step's on the
     mapped action, bit for bit."""
     key = jax.random.PRNGKey(3)
-    state = brax_env.reset(key)
-    nav_state = brax_env.nav.reset(key)
+    state = jax.jit(brax_env.reset)(key)  # jitted: an eager reset compiles op by op
+    nav_state = jax.jit(brax_env.nav.reset)(key)
     action = jnp.array([0.4, -0.3])
     after = jax.jit(brax_env.step)(state, action)
     expected = jax.jit(brax_env.nav.step)(nav_state, to_nav_action(action))

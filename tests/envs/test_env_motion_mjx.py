@@ -66,13 +66,22 @@ class MjxSim:
 
         return self._once(("rollout", arena), lambda: jax.jit(run))
 
+    def observe(self, arena: str = "training"):
+        """(poses [B, 3], goals [B, 2], velocities [B, 2]) -> observations [B, 20], the
+        sensors read at each pose (jitted: eagerly, MJX's ray casts compile op by op)."""
+        env = self.env(arena)
+
+        def observe(pose, goal, velocity):
+            return env.observe(pose, goal, env.proximity(pose), velocity)
+
+        return self._once(("observe", arena), lambda: jax.jit(jax.vmap(observe)))
+
     def place(self, pose, goal, qvel=(0.0, 0.0, 0.0), steps: int = 0, arena: str = "training"):
         """A batch of one state: the robot at ``pose`` moving with ``qvel``, mid-episode."""
-        env = self.env(arena)
         base = jax.tree_util.tree_map(lambda x: x[:1], self.resets(arena))
         pose, goal = jnp.asarray([pose], jnp.float32), jnp.asarray([goal], jnp.float32)
         velocity = jnp.asarray([qvel[:2]], jnp.float32)
-        obs = jax.vmap(env.observe)(pose, goal, jax.vmap(env.proximity)(pose), velocity)
+        obs = self.observe(arena)(pose, goal, velocity)
         return base.replace(
             pose=pose,
             goal=goal,

@@ -85,20 +85,29 @@ def test_runner_drives_like_the_jax_actor(exported):
 # The car without a car (issue 38) -------------------------------------------------------
 
 
-def _jax_episode(policy, seed: int) -> tuple[int, int]:
-    """(outcome, length) of the JAX actor's episode from ``reset(PRNGKey(seed))``."""
+@pytest.fixture(scope="module")
+def jax_episode(exported):
+    """seed -> (outcome, length) of the JAX actor's episode from ``reset(PRNGKey(seed))``,
+    reset, step and actor compiled once for every seed (an eager reset ran op by op)."""
     env = envs.make_env("physical")
-    params, hidden = actor_params_from_policy(policy)
+    params, hidden = actor_params_from_policy(exported)
     act = jax.jit(make_actor(hidden).apply)
-    step, state = jax.jit(env.step), env.reset(jax.random.PRNGKey(seed))
-    for _ in range(env.max_episode_steps):
-        state = step(state, act(params, state.obs))
-        if bool(state.done):
-            return int(state.outcome), int(state.episode_length)
-    raise AssertionError("an episode ends within h_max")
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+
+    def episode(seed: int) -> tuple[int, int]:
+        state = reset(jax.random.PRNGKey(seed))
+        for _ in range(env.max_episode_steps):
+            state = step(state, act(params, state.obs))
+            if bool(state.done):
+                return int(state.outcome), int(state.episode_length)
+        raise AssertionError("an episode ends within h_max")
+
+    return episode
 
 
-def test_sim_mode_drives_the_runner_loop_like_the_jax_actor(exported, tmp_path, capsys):
+def test_sim_mode_drives_the_runner_loop_like_the_jax_actor(
+    exported, jax_episode, tmp_path, capsys
+):
     """advisor-jax-car POLICY --sim: the runner's real loop (watchdog, drive, log) against
     the simulated arena ends each episode as the JAX evaluation of the same start does, one
     cycle later (the controller sees the goal or obstacle on the next scan), and its log
@@ -110,7 +119,7 @@ def test_sim_mode_drives_the_runner_loop_like_the_jax_actor(exported, tmp_path, 
         args = [exported.directory, "--sim", "--seed", str(seed), "--log", str(log)]
         assert car.main(args) == 0
         footer = json.loads(log.read_text().splitlines()[-1])
-        outcome, length = _jax_episode(exported, seed)
+        outcome, length = jax_episode(seed)
         seen.add(outcome)
         assert footer["end"] == ends[outcome], (seed, footer, outcome, length)
         cycles = 150 if outcome == envs.TIMEOUT else length + 1
@@ -126,7 +135,7 @@ def test_a_sonar_export_is_refused_in_one_line(tmp_path, capsys):
     env = envs.make_env("training")
     params = init_actor(make_actor(HIDDEN), jax.random.PRNGKey(1))
     out = tmp_path / "sonar"
-    obs = np.asarray(env.reset(jax.random.PRNGKey(0)).obs)[None]
+    obs = np.asarray(jax.jit(env.reset)(jax.random.PRNGKey(0)).obs)[None]
     export_policy(params, out, actor_hidden=HIDDEN, env_meta=env.metadata(),
                   config_meta={"agent": "random"}, golden_obs=obs)  # fmt: skip
     assert car.main([str(out), "--sim"]) == 2

@@ -1,11 +1,11 @@
-"""A population sharded over 2 or 3 devices equals the same population on one device.
+"""A population sharded over 2 devices equals the same population on one device.
 
 The TINY population of test_integrity.py (5 agents) is trained by tests/training/devices_worker.py
-in subprocesses with 2 and 3 forced CPU devices: 5 agents on 2 devices pads one frozen
-agent, on 3 devices one as well (6 = 2 × 3). Each agent's discrete trajectory must be
-identical to the one-device run's and its parameters within the bound of
+in subprocesses: one process with 2 forced CPU devices (5 agents pad one frozen agent: 6 =
+3 × 2), and two jax.distributed processes of one device each. Each agent's discrete
+trajectory must be identical to the one-device run's and its parameters within the bound of
 ``tests/compare.assert_same_training``; a run checkpointed on 2 devices must resume on 1,
-and one checkpointed on 1 device on 3.
+and one checkpointed on 1 device (no padding) on 2 (padded).
 """
 
 from __future__ import annotations
@@ -65,20 +65,20 @@ def _interrupt_after_first_chunk(out: Path, program) -> None:
 @pytest.fixture(scope="module")
 def workers(tmp_path_factory, tiny_functions):
     """Every worker process of this module, started at once so that they share the cores
-    while this process waits (XLA's compiles are mostly single-threaded): two runs on 2
-    devices (one whole, one interrupted), the finish on 3 devices of a run interrupted on
-    one, and a whole run by two jax.distributed processes. Each test waits for its own."""
+    while this process waits (XLA's compiles are mostly single-threaded): one process on 2
+    devices, whose three runs share one compile (one whole, one interrupted, and the finish
+    of a run interrupted on one device), and a whole run by two jax.distributed processes.
+    Each test waits for its own."""
     root = tmp_path_factory.mktemp("devices")
-    out = {name: root / name for name in ("full", "interrupted", "on_three", "distributed")}
-    _interrupt_after_first_chunk(out["on_three"], tiny_functions)
+    out = {name: root / name for name in ("full", "interrupted", "on_two", "distributed")}
+    _interrupt_after_first_chunk(out["on_two"], tiny_functions)
     with socket.socket() as s:  # a free port for the coordinator
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    logs = {name: root / f"{name}.log" for name in ("two", "three", "process0", "process1")}
+    logs = {name: root / f"{name}.log" for name in ("two", "process0", "process1")}
     procs = {
-        "two": (_start(logs["two"], 2, ("full", out["full"]),
-                       ("interrupt", out["interrupted"])), logs["two"]),
-        "three": (_start(logs["three"], 3, ("resume", out["on_three"])), logs["three"]),
+        "two": (_start(logs["two"], 2, ("full", out["full"]), ("interrupt", out["interrupted"]),
+                       ("resume", out["on_two"])), logs["two"]),
         **{f"process{i}": (_start(logs[f"process{i}"], 1, ("full", out["distributed"]),
                                   process=(i, port)), logs[f"process{i}"]) for i in range(2)},
     }  # fmt: skip
@@ -112,7 +112,7 @@ def _assert_same_agents(got, reference):
 
 def test_two_devices_equal_one_and_resume_on_one(reference, workers, tiny_functions):
     out, procs = workers
-    _wait(procs["two"])  # one compile for both runs
+    _wait(procs["two"])  # one compile for its three runs
     full, interrupted = out["full"], out["interrupted"]
     saved = json.loads((full / "run.json").read_text())
     assert saved["status"] == "finished" and saved["devices"] == 2
@@ -137,9 +137,9 @@ def test_two_processes_equal_one(reference, workers):
     _assert_same_agents(_final_state(out["distributed"], reference[2]), reference)
 
 
-def test_one_device_checkpoint_resumes_on_three(reference, workers):
+def test_one_device_checkpoint_resumes_on_two(reference, workers):
     out, procs = workers
-    _wait(procs["three"])
-    saved = json.loads((out["on_three"] / "run.json").read_text())
-    assert saved["status"] == "finished" and saved["devices"] == 3
-    _assert_same_agents(_final_state(out["on_three"], reference[2]), reference)
+    _wait(procs["two"])
+    saved = json.loads((out["on_two"] / "run.json").read_text())
+    assert saved["status"] == "finished" and saved["devices"] == 2
+    _assert_same_agents(_final_state(out["on_two"], reference[2]), reference)

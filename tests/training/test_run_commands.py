@@ -20,10 +20,10 @@ EVAL = 8
 
 @pytest.fixture(scope="module")
 def evaluated_run(tmp_path_factory, tiny_functions):
-    """A TINY run of 3 seeds scored on eval seed 4's episodes in the training arena."""
+    """A TINY run of the session's 5 seeds (its compiled program: another agent count would
+    compile again) scored on eval seed 4's episodes in the training arena."""
     out = tmp_path_factory.mktemp("evaluated")
-    train_tiny(out, tiny_functions, seeds=[0, 1, 2], eval_episodes=EVAL,
-               eval_arenas=("training",), eval_seed=4)  # fmt: skip
+    train_tiny(out, tiny_functions, eval_episodes=EVAL, eval_arenas=("training",), eval_seed=4)
     return out
 
 
@@ -42,7 +42,7 @@ def test_evaluate_repeats_eval_json_by_default(evaluated_run, capsys):
 @pytest.mark.parametrize(
     ("policy", "message"),
     [
-        ("{run}:7", "--policy {run}:7: agent 7 is out of range: {run} has 3 agents (0-2)"),
+        ("{run}:7", "--policy {run}:7: agent 7 is out of range: {run} has 5 agents (0-4)"),
         ("{run}/nope:0", "--policy {run}/nope:0: {run}/nope does not exist"),
         ("{run}/params", "is neither a training run (no run.json) nor an export"),
     ],
