@@ -109,8 +109,7 @@ def lfd_checks_record() -> dict:
     points, _ = pool(load_runs(dirs))
     where = {"motion": "mjx", "clip_q_target": 1.0}
     atd3 = [p for p in points if _matches(p, "ATD3+AfDP", where)]
-    lfd = [p for p in points if p.agent == "LfD" and not p.snapshot and p.budget == 500
-           and all(p.settings.get(k) == v for k, v in where.items())]  # fmt: skip
+    lfd = [p for p in points if _matches(p, "LfD", where)]
     reference = [p for p in lfd if p.settings["algo"] == "ddpg"
                  and p.settings["demo_episodes"] == 250]  # fmt: skip
     if len(atd3) != 1 or len(reference) != 1:

@@ -181,14 +181,19 @@ def prior_episodes(settings: BaselineConfig, hp) -> np.ndarray:
             + settings.dagger_rounds * count("dagger_episodes"))  # fmt: skip
 
 
+def unread_hparams(kind: str | None) -> set[str]:
+    """The baselines' hyperparameters an agent of baseline ``kind`` (None: a paper type)
+    does not read: every one for the paper's types, MCP+MF's for LfD, LfD's for MCP+MF."""
+    own = BASELINE_HPARAMS.get(kind, ())
+    return {n for names in BASELINE_HPARAMS.values() for n in names} - set(own)
+
+
 def check_hparam_names(
     settings: BaselineConfig | None, names: Sequence[str], agent: str = ""
 ) -> None:
     """Refuses a baseline's hyperparameter (``--hp`` / ``--grid``) for an agent that does not
     read it, naming the agents that do."""
-    own = () if settings is None else BASELINE_HPARAMS[settings.kind]
-    foreign = {n for ns in BASELINE_HPARAMS.values() for n in ns} - set(own)
-    used = sorted(set(names) & foreign)
+    used = sorted(set(names) & unread_hparams(None if settings is None else settings.kind))
     if used:
         what = ("is not a baseline" if settings is None
                 else f"is {settings.name}, which does not read it")  # fmt: skip

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from advisor_jax.agent.baselines import BASELINE_AGENTS, BASELINE_HPARAMS
+from advisor_jax.agent.baselines import BASELINE_AGENTS, unread_hparams
 from advisor_jax.agent.brax_agents import brax_agent_name, default_settings
 from advisor_jax.agent.config import HPARAM_NAMES, AgentConfig, TrainConfig, preset
 from advisor_jax.agent.hparams import HPARAM_DEFAULTS
@@ -72,14 +72,6 @@ def _brax_differences(preset_name: str, agent: str, settings: dict) -> dict:
     return {k: v for k, v in settings.items() if default.get(k) != v}
 
 
-def unread_hparams(agent: str) -> set[str]:
-    """The baselines' hyperparameters that ``agent`` does not read (every one for the paper's
-    types, MCP+MF's for LfD, LfD's for MCP+MF): a study may set them per point, but they
-    change nothing, so no label shows them."""
-    own = BASELINE_AGENTS.get(agent.lower())
-    return {n for kind, names in BASELINE_HPARAMS.items() if kind != own for n in names}
-
-
 def preset_differences(preset_name: str, agent: str, settings: dict) -> dict:
     """The settings in which an agent differs from ``preset_name``'s for its type (those it
     does not read left out)."""
@@ -87,7 +79,7 @@ def preset_differences(preset_name: str, agent: str, settings: dict) -> dict:
         return _brax_differences(preset_name, agent, settings)
     static, hp = preset(preset_name, agent)
     hp_values = {**HPARAM_DEFAULTS, **flat_items(hp)}
-    unread = unread_hparams(agent)
+    unread = unread_hparams(BASELINE_AGENTS.get(agent.lower()))  # set per point, change nothing
     out = {}
     for name, value in settings.items():
         if name in unread:
