@@ -1,8 +1,9 @@
 """Kept run data: what a report needs of a run directory, small enough to commit.
 
 ``compact_run`` copies a finished run's JSON files (run.json, eval.json, eval_episode<N>.json,
-eval_seed<S>.json, command.json) and its metrics.npz, compressed, with float64 series stored
-as float32 and the episode outcome and length as small integers; never params/,
+eval_seed<S>.json, command.json) without indentation and its metrics.npz, compressed, with
+float64 series stored as float32 and the episode outcome and length as small integers;
+never params/,
 checkpoints/ (replay buffers), episodes.csv, train_log.jsonl (both already in
 metrics.npz) or figures. ``runs.load_runs`` reads the result like any run directory.
 """
@@ -11,12 +12,11 @@ from __future__ import annotations
 
 import io
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 
-from advisor_jax.fileio import atomic_write_bytes, atomic_write_json
+from advisor_jax.fileio import atomic_write_bytes, atomic_write_text
 
 KEPT_JSON = ("run.json", "eval.json", "eval_episode*.json", "eval_seed*.json")
 DROPPED_KEYS = ("machine",)  # command.json: where a run ran, beyond its device
@@ -36,6 +36,11 @@ def compact_metrics(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
+def write_compact_json(path: Path, obj) -> None:
+    """``obj`` as JSON without indentation (a run.json's per-agent rows: a third smaller)."""
+    atomic_write_text(path, json.dumps(obj, separators=(",", ":")) + "\n")
+
+
 def compact_run(src: Path, dest: Path) -> None:
     """The compact copy of run directory ``src`` in ``dest`` (module docstring)."""
     src, dest = Path(src), Path(dest)
@@ -44,10 +49,10 @@ def compact_run(src: Path, dest: Path) -> None:
     dest.mkdir(parents=True, exist_ok=True)
     for pattern in KEPT_JSON:
         for path in src.glob(pattern):
-            shutil.copy2(path, dest / path.name)
+            write_compact_json(dest / path.name, json.loads(path.read_text()))
     if (src / "command.json").is_file():
         record = json.loads((src / "command.json").read_text())
-        atomic_write_json(
+        write_compact_json(
             dest / "command.json", {k: v for k, v in record.items() if k not in DROPPED_KEYS}
         )
     if (src / "metrics.npz").is_file():
