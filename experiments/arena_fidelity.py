@@ -5,7 +5,8 @@
 Reads kept run data only (trains nothing): the calibrated arena's runs
 (``results/arena_fidelity/run_data``: experiments/studies/arena_calibration.toml,
 ordering.toml, table1_mjx.toml; today's arena at the paper's settings:
-ordering_kinematic.toml), today's arena's Table 1 runs (``results/table1_stable``),
+ordering_kinematic.toml; MCP+MF at the paper's settings in both: ordering_mcp.toml),
+today's arena's Table 1 runs (``results/table1_stable``),
 the advisor's own evaluations (``results/advisor.json``, ``results/advisor_mjx.json``) and
 the checks of issue 35 item 4 (``results/arena_fidelity/lfd_checks/run_data``:
 experiments/studies/lfd_td3.toml, lfd_checks.toml).
@@ -33,6 +34,7 @@ RESULTS = ROOT / "results"
 CALIBRATED = RESULTS / "arena_fidelity" / "run_data"
 LFD_CHECKS = RESULTS / "arena_fidelity" / "lfd_checks" / "run_data"
 KINEMATIC = [RESULTS / "table1_stable" / "run_data", RESULTS / "table1_stable" / "run_data_d2"]
+MCP_PAPER = CALIBRATED / "ordering_mcp"  # experiments/studies/ordering_mcp.toml, both arenas
 TYPES = ("ATD3+AfDP", "LfD", "MCP+MF", "DDPG")
 PAIRS = (("ATD3+AfDP", "LfD"), ("ATD3+AfDP", "DDPG"))
 ARENAS = ("training", "validation")
@@ -53,7 +55,7 @@ CELLS = (
     Cell(
         "kinematic",
         "paper",
-        (CALIBRATED / "ordering_kinematic",),
+        (CALIBRATED / "ordering_kinematic", *([MCP_PAPER] if MCP_PAPER.is_dir() else [])),
         {"motion": "kinematic", "clip_q_target": 0.0},
     ),
     Cell("mjx", "stable", (CALIBRATED,), {"motion": "mjx", "clip_q_target": 1.0}),
@@ -91,6 +93,7 @@ def cell_record(cell: Cell) -> dict:
         if found:
             chosen[agent] = found[0]
     record["rows"] = {a: _row(p) for a, p in chosen.items()}
+    record["not_run"] = [a for a in TYPES if a not in chosen]
     record["pairs"] = {
         f"{x} - {y}": {arena: comparison(chosen[x], chosen[y], arena) for arena in ARENAS}
         for x, y in PAIRS
@@ -157,9 +160,14 @@ def markdown(record: dict) -> list[str]:
                          f"{_pct(t['success'])} / {_pct(v['success'])}",
                          f"{_pct(t['collision'])} / {_pct(v['collision'])}",
                          format_interval(Interval(**t["collision_speed"]), digits=2)))  # fmt: skip
+        rows += [(f"{cell['arena']} / {cell['settings']}", agent, "not run", "", "", "")
+                 for agent in cell.get("not_run", [])]  # fmt: skip
     header = ("arena / settings", "agent", "seeds", "success % (train / val)",
               "collision % (train / val)", "collision speed, train (m/s)")  # fmt: skip
     lines += ["## Each type", "", *markdown_table(header, rows, "llr"), ""]
+    if any(cell.get("not_run") for cell in record["cells"]):
+        lines += ["A type not run in a cell: MCP+MF at `paper` is "
+                  "experiments/studies/ordering_mcp.toml (both arenas).", ""]  # fmt: skip
     lines += ["## The advisor (500 episodes per arena, its own evaluation)", ""]
     adv = []
     for motion, item in record["advisor"].items():

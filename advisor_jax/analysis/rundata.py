@@ -2,10 +2,10 @@
 
 ``compact_run`` copies a finished run's JSON files (run.json, eval.json, eval_episode<N>.json,
 eval_seed<S>.json, command.json) without indentation and its metrics.npz, compressed, with
-float64 series stored as float32 and the episode outcome and length as small integers;
-never params/,
-checkpoints/ (replay buffers), episodes.csv, train_log.jsonl (both already in
-metrics.npz) or figures. ``runs.load_runs`` reads the result like any run directory.
+float64 series stored as float32, the episode outcome and length as small integers and
+the episode return left out (reward per step × length; ``with_derived`` restores it);
+never params/, checkpoints/ (replay buffers), episodes.csv, train_log.jsonl (both already
+in metrics.npz) or figures. ``runs.load_runs`` reads the result like any run directory.
 """
 
 from __future__ import annotations
@@ -22,10 +22,17 @@ KEPT_JSON = ("run.json", "eval.json", "eval_episode*.json", "eval_seed*.json")
 DROPPED_KEYS = ("machine",)  # command.json: where a run ran, beyond its device
 
 
+DERIVED = ("episode_return",)  # reward_per_step × length: ``with_derived`` rebuilds it
+
+
 def compact_metrics(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """float64 → float32; outcome → int8 and length → int16 where they fit."""
+    """float64 → float32; outcome → int8 and length → int16 where they fit; the episode
+    return left out where reward per step and length give it back."""
     out = {}
+    derivable = "reward_per_step" in arrays and "length" in arrays
     for name, values in arrays.items():
+        if name in DERIVED and derivable:
+            continue
         if values.dtype == np.float64:
             values = values.astype(np.float32)
         elif name in ("outcome", "phase") and values.size and np.abs(values).max() < 128:
@@ -59,3 +66,11 @@ def compact_run(src: Path, dest: Path) -> None:
         buf = io.BytesIO()
         np.savez_compressed(buf, **compact_metrics(dict(np.load(src / "metrics.npz"))))
         atomic_write_bytes(dest / "metrics.npz", buf.getvalue())
+
+
+def with_derived(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``arrays`` with the series ``compact_metrics`` leaves out computed again (the episode
+    return as reward per step × length; NaN for episodes not played)."""
+    if "episode_return" not in arrays and {"reward_per_step", "length"} <= arrays.keys():
+        arrays = {**arrays, "episode_return": arrays["reward_per_step"] * arrays["length"]}
+    return arrays

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from advisor_jax.analysis.point_settings import preset_differences, settings_of
+from advisor_jax.analysis.rundata import with_derived
 
 EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
 
@@ -68,7 +69,7 @@ class Run:
     @cached_property
     def _metrics(self) -> dict | None:
         path = self.path / "metrics.npz"
-        return dict(np.load(path)) if path.is_file() else None
+        return with_derived(dict(np.load(path))) if path.is_file() else None
 
     def metrics(self) -> dict | None:
         """metrics.npz as {name: array} (per agent × episode; ``log/...`` per chunk)."""
@@ -297,7 +298,7 @@ def _show(value) -> str:
 def pool(runset: RunSet) -> tuple[list[Point], list[str]]:
     """The points of a run set: its runs' agents at every budget (final and kept actors)."""
     points: dict[tuple, Point] = {}
-    notes = []
+    repeats: dict[tuple, list[int]] = {}  # (run, point, budget, first run) -> seeds
     for run in runset.runs:
         budgets = [(run.config["episodes"], False, run.evaluation)]
         budgets += [(n, True, ev) for n, ev in sorted(run.snapshots.items())]
@@ -319,10 +320,8 @@ def pool(runset: RunSet) -> tuple[list[Point], list[str]]:
                 )
                 seed, i = int(row["seed"]), int(row["index"])
                 if seed in point.seeds:
-                    notes.append(
-                        f"{run.path}: seed {seed} of {point.text()} at {budget} episodes "
-                        f"also in {point.seeds[seed].run.path}; counted once"
-                    )
+                    where = (run.path, point.text(), budget, point.seeds[seed].run.path)
+                    repeats.setdefault(where, []).append(seed)
                     continue
                 picked = {
                     a: {k: (ev[k][i] if k in ev else None) for k in EVAL_KEYS}
@@ -335,4 +334,18 @@ def pool(runset: RunSet) -> tuple[list[Point], list[str]]:
                 point.seeds[seed] = Seed(seed, run, i, budget, snapshot, picked, advised)
     for point in points.values():
         point.seeds = dict(sorted(point.seeds.items()))
+    notes = [
+        f"{path}: {_seed_list(seeds)} of {text} at {budget} episodes also in {first}; counted once"
+        for (path, text, budget, first), seeds in repeats.items()
+    ]
     return list(points.values()), notes
+
+
+def _seed_list(seeds: list[int]) -> str:
+    """``seed 3``, ``seeds 0-3``, ``seeds 0, 2, 5``."""
+    seeds = sorted(seeds)
+    if len(seeds) == 1:
+        return f"seed {seeds[0]}"
+    if seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"seeds {seeds[0]}-{seeds[-1]}"
+    return "seeds " + ", ".join(map(str, seeds))

@@ -59,6 +59,11 @@ class SweepArgs:
     """Pieces trained at once on each device, each in its own process with that share of
     the device's memory (small pieces leave a GPU idle between kernels; docs/sweeps.md).
     A kept plan keeps its own --max-agents and --per-device."""
+    time_limit: float | None = None
+    """Minutes: start only the pieces predicted to end within this many minutes from now
+    (each piece's estimate × what finished pieces took against theirs), longest first;
+    the others wait for the next call (e.g. a job's wall-clock limit). Running pieces are
+    not stopped."""
     no_progress: bool = False
     """Hide the progress display."""
 
@@ -129,6 +134,14 @@ def sweep_command(args: SweepArgs) -> None:
             f"--per-device {plan.device.processes} is for local runs: a Slurm task trains one "
             "piece; plan this --out without --per-device"
         )
+    if args.time_limit is not None:
+        if args.time_limit <= 0:
+            raise StudyError(f"--time-limit {args.time_limit:g}: give a positive number of minutes")
+        if args.dry_run or args.piece is not None or args.slurm is not None:
+            raise StudyError(
+                "--time-limit is for local runs: it chooses which pieces to start, and "
+                "--dry-run, --piece and --slurm start none"
+            )
     if args.dry_run:
         print_plan(console, study, plan, args.out, kept)
         return
@@ -148,14 +161,23 @@ def sweep_command(args: SweepArgs) -> None:
         return
     print_plan(console, study, plan, args.out, kept)
     devices = planning.local_devices()[: args.devices or None]
-    result = sweep.run_local(study, args.out, plan, devices, not args.no_progress, console)
+    limit = None if args.time_limit is None else 60.0 * args.time_limit
+    result = sweep.run_local(
+        study, args.out, plan, devices, not args.no_progress, console, time_limit=limit
+    )
     failed = [i for i, status in result.items() if status == sweep.FAILED]
     if failed:
         raise StudyError(
             f"pieces {', '.join(map(str, failed))} failed (see {args.out / 'logs'}); the others "
             "are kept: run the same command again to retry them"
         )
-    console.print(
-        f"{len(plan.pieces)} of {len(plan.pieces)} pieces finished in {args.out / 'runs'}; next: "
-        f"advisor-jax report {args.out} --out REPORT"
-    )
+    left = [i for i, status in result.items() if status == sweep.LEFT]
+    done = len(plan.pieces) - len(left)
+    console.print(f"{done} of {len(plan.pieces)} pieces finished in {args.out / 'runs'}")
+    if left:
+        console.print(
+            f"pieces {', '.join(map(str, sorted(left)))} would not end within --time-limit "
+            f"{args.time_limit:g}: run the same command again to train them"
+        )
+    else:
+        console.print(f"next: advisor-jax report {args.out} --out REPORT")

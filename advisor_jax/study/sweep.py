@@ -19,6 +19,7 @@ import dataclasses
 import json
 import os
 import shlex
+import statistics
 import subprocess
 import sys
 import time
@@ -32,6 +33,7 @@ from advisor_jax.study.plan import Device, Piece, Plan
 from advisor_jax.study.spec import Study, StudyError
 
 FAILED = "failed"
+LEFT = "left"  # not started: predicted to end after --time-limit
 
 
 def run_dir(out: Path, piece: Piece) -> Path:
@@ -176,6 +178,17 @@ class _Worker:
     process: subprocess.Popen
     log: object
     task: int
+    started: float = 0.0  # time.monotonic()
+
+
+def first_fitting(queue: list[Piece], seconds_left: float | None, ratio: float) -> int | None:
+    """Index in ``queue`` of the first piece predicted to end within ``seconds_left``: its
+    estimate × ``ratio`` (what finished pieces took against their estimates). A piece
+    without an estimate always fits; no limit (None): the first piece."""
+    for i, piece in enumerate(queue):
+        if seconds_left is None or piece.seconds is None or piece.seconds * ratio <= seconds_left:
+            return i
+    return None
 
 
 def run_local(
@@ -185,9 +198,14 @@ def run_local(
     devices: list[Device],
     progress: bool = True,
     console: Console | None = None,
+    time_limit: float | None = None,
 ) -> dict[int, str]:
     """Every unfinished piece, ``plan.device.processes`` workers per device at a time,
-    longest first; returns {piece: "finished" | "failed"}. Ctrl-C stops the workers (each
+    longest first; returns {piece: "finished" | "failed" | "left"}. With ``time_limit``
+    (seconds) a free worker takes the longest piece predicted to end in time
+    (``first_fitting``; the ratio starts at the workers per device, a shared GPU's
+    slowdown, and becomes the median of what finished pieces took against their estimates);
+    pieces that fit nowhere are "left" for the next call. Ctrl-C stops the workers (each
     checkpoints)."""
     console = console or Console(stderr=True)
     (out / "logs").mkdir(parents=True, exist_ok=True)
@@ -200,6 +218,8 @@ def run_local(
     processes = plan.device.processes
     free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
     running = []
+    deadline = None if time_limit is None else time.monotonic() + time_limit
+    ratios: list[float] = []
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -212,8 +232,15 @@ def run_local(
         try:
             while queue or running:
                 while queue and free:
-                    piece, device = queue.pop(0), free.pop(0)
+                    left = None if deadline is None else deadline - time.monotonic()
+                    ratio = statistics.median(ratios) if ratios else float(processes)
+                    i = first_fitting(queue, left, ratio)
+                    if i is None:
+                        break
+                    piece, device = queue.pop(i), free.pop(0)
                     running.append(_start(study, out, piece, device, bar, total))
+                if not running:
+                    break  # what is queued fits in no time that is left
                 time.sleep(1.0)
                 for w in list(running):
                     done = _episodes_done(run_dir(out, w.piece), w.piece.agents)
@@ -226,6 +253,8 @@ def run_local(
                     bar.remove_task(w.task)
                     ok = w.process.returncode == 0
                     result[w.piece.index] = "finished" if ok else FAILED
+                    if ok and w.piece.seconds:
+                        ratios.append((time.monotonic() - w.started) / w.piece.seconds)
                     if not ok:
                         console.print(
                             f"[red]piece {w.piece.index} ({w.piece.name}) failed "
@@ -241,6 +270,7 @@ def run_local(
             for w in running:
                 w.process.wait()
             raise
+    result.update({p.index: LEFT for p in queue})
     return result
 
 
@@ -268,7 +298,7 @@ def _start(study, out, piece, device, bar, total) -> _Worker:
     where = "cpu" if device.index is None else f"GPU {device.index}"
     task = bar.add_task(f"  {piece.name} ({where})", total=total[piece.index])
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
-    return _Worker(piece, device, process, log, task)
+    return _Worker(piece, device, process, log, task, time.monotonic())
 
 
 # -- a cluster ------------------------------------------------------------------------------

@@ -53,8 +53,9 @@ def write_run(root: Path, name: str, agent: str, seeds, success, *, preset_name=
         (run / f"eval_seed{seed}.json").write_text(json.dumps(evaluation(values)))
     if outcome is not None:
         n = len(seeds)
+        per_step = np.linspace(-1.0, 2.0, np.size(outcome)).reshape(np.shape(outcome))
         np.savez(run / "metrics.npz", outcome=np.asarray(outcome, np.int32),
-                 length=np.full_like(np.asarray(outcome), 10),
-                 reward_per_step=np.ones(np.shape(outcome)),
+                 length=np.full_like(np.asarray(outcome), 10), reward_per_step=per_step,
+                 episode_return=10 * per_step,
                  env_steps=np.full(n, 10 * np.shape(outcome)[1]))  # fmt: skip
     return run

@@ -103,9 +103,11 @@ def test_budget_figures_hold_the_advisor_share_and_eps_its_grid(tmp_path):
     fig7 = json.loads((out / "fig7.json").read_text())
     budgets = [[p["episodes"] for p in s["points"]] for s in fig7["series"]]
     assert budgets == [[100, 200], [100, 200]]  # one line per share, N_total along it
-    shares = {s["label"] for s in fig7["series"]}
-    assert len(shares) == 2
+    shares = [s["label"] for s in fig7["series"]]
+    assert len(shares) == 2 and "25 %" in shares[0] and "50 %" in shares[1]
     fig11 = json.loads((out / "fig11.json").read_text())
+    afd = [s["label"] for s in fig11["series"] if s["label"].startswith("ADDPG+AfD")]
+    assert len(afd) == 1 and "N_T = 50 %" in afd[0]  # the preset's share; 25 % is Fig. 7's
     ddpg = [s for s in fig11["series"] if s["label"].startswith("DDPG")]
     assert [p["training"]["per_seed"][2] for p in ddpg[0]["points"]] == [0.25, 0.5]
     eps = json.loads((out / "eps.json").read_text())

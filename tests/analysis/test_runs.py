@@ -25,6 +25,17 @@ def test_seeds_of_one_setting_pool_across_runs_and_a_repeated_seed_counts_once(t
     assert any("seed 3" in n and "counted once" in n for n in notes)
 
 
+def test_a_repeated_population_is_one_note_naming_its_seeds(tmp_path):
+    write_run(tmp_path, "a", "DDPG", [0, 1, 2, 3], [0.8, 0.6, 0.7, 0.5])
+    write_run(tmp_path, "b", "DDPG", [0, 1, 2, 3], [0.1, 0.1, 0.1, 0.1])
+    write_run(tmp_path, "c", "DDPG", [0, 2], [0.1, 0.1])
+    points, notes = pool(load_runs([tmp_path]))
+    assert points[0].scores("training") == {0: 0.8, 1: 0.6, 2: 0.7, 3: 0.5}
+    assert len(notes) == 2
+    assert "seeds 0-3 of DDPG" in notes[0] and notes[0].endswith("counted once")
+    assert "seeds 0, 2 of DDPG" in notes[1]
+
+
 def test_labels_name_the_learner_and_leave_out_what_a_type_does_not_read(tmp_path):
     write_run(tmp_path, "a", "LfD", [0], [0.8])
     write_run(tmp_path, "b", "LfD", [0], [0.7], algo="td3", policy_delay=2)
@@ -137,3 +148,8 @@ def test_compact_run_keeps_what_the_loader_reads(tmp_path):
     np.testing.assert_array_equal(metrics["outcome"], [[1, 2, 1], [2, 2, 3]])
     (point,) = pool(load_runs([tmp_path / "out"]))[0]
     np.testing.assert_array_equal(point.episodes("outcome"), [[1, 2, 1], [2, 2, 3]])
+    assert "episode_return" not in metrics  # reward per step × length gives it back
+    original = np.load(run / "metrics.npz")
+    np.testing.assert_allclose(
+        point.seeds[0].run.metrics()["episode_return"], original["episode_return"], rtol=1e-6
+    )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import textwrap
 
@@ -139,3 +140,64 @@ def test_run_local_fills_each_device_with_per_device_workers(study_file, tmp_pat
     assert len(started) == len(plan.pieces) == 6 and max(most) == 4
     assert [env["CUDA_VISIBLE_DEVICES"] for env in started[:4]] == ["0", "1", "0", "1"]
     assert {env["XLA_PYTHON_CLIENT_MEM_FRACTION"] for env in started} == {"0.3750"}
+
+
+def test_first_fitting_takes_the_longest_piece_that_ends_in_time():
+    from advisor_jax.study.plan import Piece
+
+    def piece(i, seconds):
+        return Piece(i, 0, (0,), (0,), f"p{i}", seconds)
+
+    queue = [piece(0, 600.0), piece(1, 300.0), piece(2, None), piece(3, 60.0)]
+    assert sweep.first_fitting(queue, None, 2.0) == 0  # no limit: longest first
+    assert sweep.first_fitting(queue, 700.0, 2.0) == 1  # 600 x 2 > 700 >= 300 x 2
+    assert sweep.first_fitting(queue, 100.0, 2.0) == 2  # no estimate: it always fits
+    assert sweep.first_fitting([queue[0], queue[1]], 100.0, 2.0) is None
+
+
+def test_time_limit_starts_what_ends_in_time_and_leaves_the_rest(study_file, tmp_path, monkeypatch):
+    """One device, pieces of 100 s estimated: the first two fit a 250 s limit one after the
+    other; each took 1.2 x its estimate, so the third (predicted 120 s with 10 s left) waits."""
+    from advisor_jax.study import plan as planning
+
+    study = load_study(study_file)
+    gpu = planning.Device("G", 80 << 30, 0)
+    plan = planning.plan_study(study, gpu, devices=1, max_agents=2)
+    plan = dataclasses.replace(
+        plan, pieces=tuple(dataclasses.replace(p, seconds=100.0) for p in plan.pieces)
+    )
+    clock = [0.0]
+    started = []
+
+    class FakeProcess:  # a worker that takes 120 s of the fake clock
+        def __init__(self, command, env, **_):
+            started.append(command[command.index("--piece") + 1])
+            self.returncode, self.end = None, clock[0] + 120.0
+
+        def poll(self):
+            if clock[0] >= self.end:
+                self.returncode = 0
+            return self.returncode
+
+    def sleep(seconds):
+        clock[0] += seconds
+
+    monkeypatch.setattr(sweep.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(sweep.time, "sleep", sleep)
+    monkeypatch.setattr(sweep.time, "monotonic", lambda: clock[0])
+    (tmp_path / "o").mkdir()
+    result = sweep.run_local(study, tmp_path / "o", plan, [gpu], progress=False, time_limit=250.0)
+    assert len(plan.pieces) == 3 and len(started) == 2
+    assert sorted(result.values()) == ["finished", "finished", "left"]
+
+
+def test_time_limit_is_checked_before_anything_runs(study_file, tmp_path, capsys):
+    out = tmp_path / "o"
+    local = "--time-limit is for local runs"
+    for bad, message in ((["--time-limit", "0"], "give a positive number of minutes"),
+                         (["--time-limit", "5", "--dry-run"], local),
+                         (["--time-limit", "5", "--piece", "0"], local)):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_:
+            main(["sweep", str(study_file), "--out", str(out), *bad])
+        assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not out.exists()

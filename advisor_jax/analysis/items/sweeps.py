@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import math
 
+from advisor_jax.agent.config import preset
+from advisor_jax.agent.settings import flat_items
 from advisor_jax.analysis.items.base import (
     ARENAS,
     BUDGET_SHARES,
@@ -149,9 +151,14 @@ def _share_key(point: Point) -> tuple:
     return base, shares
 
 
+def _by_share(series: dict) -> dict:
+    """Series keyed by ``_share_key`` in the order of agent type, then share (25 % first)."""
+    return dict(sorted(series.items(), key=lambda kv: (rank(kv[1][0].agent), kv[0][1])))
+
+
 def fig7(points: list[Point], context) -> Item | None:
     afd = [p for p in simulated(points) if uses_advisor_data(p.agent)]
-    series = _series(afd, ("episodes",), key=_share_key)
+    series = _by_share(_series(afd, ("episodes",), key=_share_key))
     shares = {round(m[0].settings["advisor_episodes"] / m[0].budget, 3) for m in series.values()}
     if len(shares) < 2:
         return None
@@ -173,8 +180,28 @@ def fig7(points: list[Point], context) -> Item | None:
     )
 
 
+def _program_shares(point: Point) -> tuple:
+    """The shares of its preset's budget that the preset gives ``point``'s type (N_T = 250
+    of 500 at `stable`: 0.5), in ``_share_key``'s order."""
+    static, hp = preset(point.preset, point.agent)
+    counts = flat_items(hp)
+    return tuple(round(counts[n] / static.episodes, 3) for n in _shares_read(point.agent))
+
+
+def _at_program_shares(series: dict) -> dict:
+    """Of the series that differ only in their shares (Fig. 7's subject), the one at the
+    preset's shares where there is one; the others stay where none is."""
+    kept = {}
+    for base in {k[0] for k in series}:
+        group = {k: m for k, m in series.items() if k[0] == base}
+        program = {k: m for k, m in group.items() if k[1] == _program_shares(m[0])}
+        kept |= program or group
+    return {k: m for k, m in series.items() if k in kept}
+
+
 def fig11(points: list[Point], context) -> Item | None:
-    series = _series(simulated(points), ("episodes",), key=_share_key)
+    series = _by_share(_series(simulated(points), ("episodes",), key=_share_key))
+    series = _at_program_shares(series)
     if not series:
         return None
     return _sweep_item(
@@ -187,7 +214,8 @@ def fig11(points: list[Point], context) -> Item | None:
         ("episodes", *BUDGET_SHARES),
         lambda m: _rows(m, "N_total", lambda p: p.budget),
         "Evaluation success (%) of every agent type against its budget (N_T and the "
-        "baselines' prior episodes as shares of it), "
+        "baselines' prior episodes as shares of it, at the preset's shares where several "
+        "were run: the others are Fig. 7's), "
         + interval_note([p for m in series.values() for p in m])
         + ".",
     )
