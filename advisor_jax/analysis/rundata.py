@@ -2,7 +2,8 @@
 
 ``compact_run`` copies a finished run's JSON files (run.json, eval.json, eval_episode<N>.json,
 eval_seed<S>.json, command.json) without indentation and its metrics.npz, compressed, with
-float64 series stored as float32, the episode outcome and length as small integers and
+float64 series stored as float32, the per-episode reward per step as float16 (within
+2.5e-4; reports print fewer digits), the episode outcome and length as small integers and
 the episode return left out (reward per step × length; ``with_derived`` restores it);
 never params/, checkpoints/ (replay buffers), episodes.csv, train_log.jsonl (both already
 in metrics.npz) or figures. ``runs.load_runs`` reads the result like any run directory.
@@ -23,17 +24,21 @@ DROPPED_KEYS = ("machine",)  # command.json: where a run ran, beyond its device
 
 
 DERIVED = ("episode_return",)  # reward_per_step × length: ``with_derived`` rebuilds it
+HALF = ("reward_per_step",)  # in [-1.1, 0.7]: float16, within 2.5e-4
 
 
 def compact_metrics(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """float64 → float32; outcome → int8 and length → int16 where they fit; the episode
-    return left out where reward per step and length give it back."""
+    """float64 → float32, the reward per step (``HALF``) → float16; outcome → int8 and
+    length → int16 where they fit; the episode return left out where reward per step and
+    length give it back."""
     out = {}
     derivable = "reward_per_step" in arrays and "length" in arrays
     for name, values in arrays.items():
         if name in DERIVED and derivable:
             continue
-        if values.dtype == np.float64:
+        if name in HALF and values.dtype in (np.float64, np.float32):
+            values = values.astype(np.float16)
+        elif values.dtype == np.float64:
             values = values.astype(np.float32)
         elif name in ("outcome", "phase") and values.size and np.abs(values).max() < 128:
             values = values.astype(np.int8)
@@ -70,7 +75,9 @@ def compact_run(src: Path, dest: Path) -> None:
 
 def with_derived(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """``arrays`` with the series ``compact_metrics`` leaves out computed again (the episode
-    return as reward per step × length; NaN for episodes not played)."""
+    return as reward per step × length, within length × 2.5e-4 of the recorded one; NaN
+    for episodes not played)."""
     if "episode_return" not in arrays and {"reward_per_step", "length"} <= arrays.keys():
-        arrays = {**arrays, "episode_return": arrays["reward_per_step"] * arrays["length"]}
+        per_step = arrays["reward_per_step"].astype(np.float32)
+        arrays = {**arrays, "episode_return": per_step * arrays["length"]}
     return arrays

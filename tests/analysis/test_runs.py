@@ -144,12 +144,12 @@ def test_compact_run_keeps_what_the_loader_reads(tmp_path):
     assert json.loads((tmp_path / "out" / "a" / "command.json").read_text()) == {"command": "c"}
     metrics = np.load(tmp_path / "out" / "a" / "metrics.npz")
     assert metrics["outcome"].dtype == np.int8 and metrics["length"].dtype == np.int16
-    assert metrics["reward_per_step"].dtype == np.float32
+    assert metrics["reward_per_step"].dtype == np.float16
     np.testing.assert_array_equal(metrics["outcome"], [[1, 2, 1], [2, 2, 3]])
     (point,) = pool(load_runs([tmp_path / "out"]))[0]
     np.testing.assert_array_equal(point.episodes("outcome"), [[1, 2, 1], [2, 2, 3]])
     assert "episode_return" not in metrics  # reward per step × length gives it back
     original = np.load(run / "metrics.npz")
     np.testing.assert_allclose(
-        point.seeds[0].run.metrics()["episode_return"], original["episode_return"], rtol=1e-6
+        point.seeds[0].run.metrics()["episode_return"], original["episode_return"], rtol=1e-3
     )
