@@ -12,9 +12,14 @@ learning start, and reports per environment step:
   ``Learner.update`` (collect, replay sample, critic step, actor step) that XLA keeps in
   the compiled program's op names; cuBLAS GEMMs run inside CUDA graphs without an HLO
   name and are counted as their own part;
-* kernel time by kind (GEMM, elementwise, reduction, copy/transpose) and the top kernels.
+* kernel time by kind (GEMM, elementwise, reduction, copy/transpose) and the top kernels;
+* with ``--devices N`` (the population sharded as ``advisor-jax train --devices N`` shards
+  it): each GPU's busy time, and the time at least one GPU was busy against their sum,
+  which tells devices that run at once (the union near one device's time) from devices
+  that take turns (the union near the sum). Per-step figures are then per device.
 
     python experiments/profile_train.py --agents 1 64 --precision bf16     # on the GPU
+    python experiments/profile_train.py --agents 256 --devices 1 2 4 --precision bf16
     python experiments/profile_train.py --preset quick --agents 1 --chunk 20   # CPU smoke run
 
 Writes ``results/profile_train.md`` and ``.json`` (``--out``).
@@ -38,7 +43,7 @@ from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.devices import place
+from advisor_jax.training.devices import freeze_padding, pad, place, shard
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import population_functions
 
@@ -77,11 +82,33 @@ def largest_first(totals: dict[str, float]) -> list[tuple[str, float]]:
     return sorted(totals.items(), key=lambda kv: -kv[1])
 
 
-def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
-    """One traced chunk of ``n_agents``, warm (compiled, past the learning start)."""
-    _, init_fn, chunk_fn = population_functions(cfg, place(n_agents, 1))  # training's program
+def by_device(events: list[dict]) -> dict[int, list[dict]]:
+    """The kernel events of each device (a trace process per GPU), in trace order."""
+    out: dict[int, list[dict]] = collections.defaultdict(list)
+    for e in events:
+        out[e["pid"]].append(e)
+    return dict(sorted(out.items()))
+
+
+def device_rows(groups: dict[int, list[dict]], steps: int) -> tuple[list[dict], float]:
+    """Per device of ``groups`` (``by_device``): busy µs and kernels per step; and the µs
+    per step at least one device was busy (the union of every device's kernels)."""
+    rows = [
+        dict(device=pid, busy_us_per_step=busy_us(evs) / steps, kernels_per_step=len(evs) / steps)
+        for pid, evs in groups.items()
+    ]
+    return rows, busy_us([e for evs in groups.values() for e in evs]) / steps
+
+
+def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1) -> dict:
+    """One traced chunk of ``n_agents`` on ``devices``, warm (compiled, past the learning
+    start), placed as training places it (padded and sharded on the agent axis)."""
+    placement = place(n_agents, devices)
+    _, init_fn, chunk_fn = population_functions(cfg, placement)  # training's program
     hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
-    state, step = init_fn(agent_keys(list(range(n_agents)))), 0
+    hp = shard(pad(hp, placement), placement)
+    keys = shard(pad(agent_keys(list(range(n_agents))), placement), placement)
+    state, step = freeze_padding(init_fn(keys), placement, cfg.episodes), 0
     compiled = chunk_fn.lower(state, hp, jnp.int32(step)).compile()  # runs, and has the HLO
 
     def chunk():
@@ -99,6 +126,9 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
     events, source, _ = read_trace(trace_dir)
     instructions = hlo_instructions(hlo)
     steps = cfg.chunk_steps
+    groups = by_device(events) if source.startswith("device") else {0: events}  # a CPU: one
+    per_device, any_busy = device_rows(groups, steps)
+    n_dev = len(per_device) or 1  # per-step figures below: per device
     by_part: dict[str, float] = collections.defaultdict(float)
     by_kind: dict[str, float] = collections.defaultdict(float)
     by_name: dict[str, list] = collections.defaultdict(lambda: [0, 0.0, "", ("", "")])
@@ -110,32 +140,58 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path) -> dict:
         by_kind[kind_of(name)] += e["dur"]
         row = by_name[name]
         row[:] = row[0] + 1, row[1] + e["dur"], part, shape_op or ("", "")
-    gaps = gaps_us(events)
+    gaps = [g for evs in groups.values() for g in gaps_us(evs)]
     edges = (0, *GAP_EDGES_US, float("inf"))
     gap_bins = {
-        f"{lo:g}-{hi:g} µs": (sum(lo <= g < hi for g in gaps) / steps,
-                              sum(g for g in gaps if lo <= g < hi) / steps)
+        f"{lo:g}-{hi:g} µs": (sum(lo <= g < hi for g in gaps) / steps / n_dev,
+                              sum(g for g in gaps if lo <= g < hi) / steps / n_dev)
         for lo, hi in zip(edges[:-1], edges[1:], strict=True)
     }  # fmt: skip
-    per_step = lambda us: us / steps  # noqa: E731
+    per_step = lambda us: us / steps / n_dev  # noqa: E731
     return dict(
         _hlo=hlo,
         agents=n_agents,
+        devices=devices,
         steps=steps,
         agent_steps_per_s=n_agents * steps * cfg.envs_per_agent / untraced,
         wall_us_per_step=1e6 * wall / steps,
         wall_untraced_us_per_step=1e6 * untraced / steps,
-        busy_us_per_step=per_step(busy_us(events)),
-        kernels_per_step=len(events) / steps,
+        busy_us_per_step=sum(d["busy_us_per_step"] for d in per_device) / n_dev,
+        kernels_per_step=len(events) / steps / n_dev,
+        per_device=per_device,
+        any_device_busy_us_per_step=any_busy,
         event_source=source,
         gaps_per_step={k: dict(count=c, us=us) for k, (c, us) in gap_bins.items()},
         part_us_per_step={k: per_step(v) for k, v in largest_first(by_part)},
         kind_us_per_step={k: per_step(v) for k, v in largest_first(by_kind)},
-        top=[dict(name=n, calls_per_step=c / steps, us_per_step=d / steps, part=p,
+        top=[dict(name=n, calls_per_step=per_step(c), us_per_step=per_step(d), part=p,
                   shape=shape, op=op)
              for n, (c, d, p, (shape, op)) in sorted(by_name.items(),
                                                      key=lambda kv: -kv[1][1])[:40]],
     )  # fmt: skip
+
+
+def _device_lines(r: dict) -> list[str]:
+    """Each device's busy time, and whether they ran at once (several devices only)."""
+    devices = r.get("per_device", [])
+    if len(devices) < 2:
+        return []
+    total = sum(d["busy_us_per_step"] for d in devices)
+    union, wall = r["any_device_busy_us_per_step"], r["wall_us_per_step"]
+    return [
+        *writing.markdown_table(
+            ("device (trace process)", "busy µs per step", "busy %", "kernels per step"),
+            [(d["device"], d["busy_us_per_step"], 100 * d["busy_us_per_step"] / wall,
+              d["kernels_per_step"]) for d in devices],
+            formats=("", ".0f", ".0f", ".1f"),
+        ),
+        "",
+        f"At least one device busy {union:.0f} µs per step, against {total:.0f} µs summed "
+        f"over the devices and {max(d['busy_us_per_step'] for d in devices):.0f} µs on the "
+        "busiest: near the busiest, the devices run at once; near the sum, they take turns. "
+        "The figures below are per device.",
+        "",
+    ]  # fmt: skip
 
 
 def report(rows: list[dict], title: str, command: str) -> list[str]:
@@ -144,10 +200,12 @@ def report(rows: list[dict], title: str, command: str) -> list[str]:
         lines += ["", "No GPU in the trace: the events below are the host's (a smoke run)."]
     for r in rows:
         idle = r["wall_us_per_step"] - r["busy_us_per_step"]
+        on = f" on {r['devices']} devices" if r.get("devices", 1) > 1 else ""
         lines += [
             "",
-            f"## {r['agents']} agent{'s' if r['agents'] > 1 else ''}",
+            f"## {r['agents']} agent{'s' if r['agents'] > 1 else ''}{on}",
             "",
+            *_device_lines(r),
             f"{r['agent_steps_per_s']:,.0f} agent env-steps/s untraced "
             f"({r['wall_untraced_us_per_step']:.0f} µs per population step). Traced: "
             f"{r['wall_us_per_step']:.0f} µs per step, the device busy "
@@ -204,6 +262,9 @@ def main() -> None:
     parser.add_argument("--agent", default="ATD3+AfDP")
     parser.add_argument("--agents", type=int, nargs="+", default=[1, 64])
     parser.add_argument("--chunk", type=int, default=100, help="env steps in the traced chunk")
+    parser.add_argument("--devices", type=int, nargs="+", default=[1],
+                        help="shard each population over this many devices (each count "
+                             "in turn), as advisor-jax train --devices does")  # fmt: skip
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
                         help="the learner's precision (AgentConfig.precision)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("results"))
@@ -212,20 +273,23 @@ def main() -> None:
     args = parser.parse_args()
     if min(args.agents) < 1 or args.chunk < 1:
         parser.error(f"--agents and --chunk must be ≥ 1, got {args.agents} and {args.chunk}")
+    if min(args.devices) < 1 or max(args.devices) > jax.device_count():
+        parser.error(f"--devices {args.devices}: this machine has {jax.device_count()}")
     cfg, hp = preset(args.preset, args.agent, precision=args.precision)
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
     where = measure.provenance()
     rows = []
-    for n in args.agents:
+    for n, devices in [(n, d) for d in args.devices for n in args.agents]:
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
-            rows.append(profile(cfg, hp, n, Path(tmp)))
+            rows.append(profile(cfg, hp, n, Path(tmp), devices))
         r = rows[-1]
         hlo = r.pop("_hlo")
         if args.keep_hlo:
             args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / f"profile_train_hlo_{n}.txt.gz").write_bytes(gzip.compress(hlo.encode()))
-        print(f"agents {n}: {r['agent_steps_per_s']:,.0f} agent env-steps/s, "
+            name = f"profile_train_hlo_{n}" + (f"_{devices}dev" if devices > 1 else "")
+            (args.out / f"{name}.txt.gz").write_bytes(gzip.compress(hlo.encode()))
+        print(f"agents {n}, devices {devices}: {r['agent_steps_per_s']:,.0f} agent env-steps/s, "
               f"{r['wall_us_per_step']:.0f} µs per step traced, busy "
               f"{r['busy_us_per_step']:.0f} µs, {r['kernels_per_step']:.1f} kernels "
               f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip

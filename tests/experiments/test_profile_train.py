@@ -53,3 +53,21 @@ def test_the_training_chunk_carries_the_named_scopes():
     text = chunk_fn.lower(init_fn(agent_keys([0])), hp, jnp.int32(0)).as_text(debug_info=True)
     for scope in ("collect", "learn", "replay_sample", "critic_step", "actor_step"):
         assert re.search(rf'["/]{scope}/', text), scope
+
+
+def test_devices_that_run_at_once_are_told_from_devices_that_take_turns():
+    at_once = [dict(pid=1, ts=0, dur=10), dict(pid=2, ts=0, dur=10),
+               dict(pid=1, ts=20, dur=10), dict(pid=2, ts=21, dur=10)]  # fmt: skip
+    turns = [dict(pid=1, ts=0, dur=10), dict(pid=2, ts=10, dur=10),
+             dict(pid=1, ts=20, dur=10), dict(pid=2, ts=30, dur=10)]  # fmt: skip
+    for events, union in ((at_once, 21.0), (turns, 40.0)):
+        groups = profile_train.by_device(events)
+        rows, any_busy = profile_train.device_rows(groups, steps=2)
+        assert [(r["device"], r["busy_us_per_step"], r["kernels_per_step"]) for r in rows] == [
+            (1, 10.0, 1.0), (2, 10.0, 1.0)
+        ]  # fmt: skip
+        assert any_busy == union / 2
+    row = dict(per_device=rows, any_device_busy_us_per_step=any_busy, wall_us_per_step=25.0)
+    text = "\n".join(profile_train._device_lines(row))
+    assert "20 µs per step, against 20 µs summed" in text  # the turns: union = sum
+    assert profile_train._device_lines(dict(per_device=rows[:1])) == []
