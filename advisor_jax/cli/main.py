@@ -237,10 +237,11 @@ def export(args: Annotated[ExportArgs, tyro.conf.arg(name="")]) -> None:
 
 
 def sweep(args: Annotated[SweepArgs, tyro.conf.arg(name="")]) -> None:
-    """Train a study file (agent types × static settings × grid × seeds) on every local GPU.
+    """Train study files (agent types × static settings × grid × seeds) on every local GPU.
 
-    Plans the study into pieces that fit one device, runs them (resumable: a second call
-    skips finished pieces), or writes a Slurm job array (--slurm). docs/sweeps.md.
+    Plans each study into pieces that fit one device, runs them (resumable: a second call
+    skips finished pieces; --time-limit starts only what ends in time), or writes a Slurm
+    job array (--slurm). docs/sweeps.md.
     """
     sweep_command(args)
 

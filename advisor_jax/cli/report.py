@@ -31,7 +31,11 @@ class ReportArgs:
       advisor-jax report results/table1_stable --versus clip_q_target=1 --items versus
     """
 
-    dirs: Annotated[tuple[Path, ...], tyro.conf.Positional, tyro.conf.arg(metavar="DIR")]
+    dirs: Annotated[
+        tuple[Path, ...],
+        tyro.conf.Positional,
+        tyro.conf.arg(metavar="DIR...", help_behavior_hint="(required)"),
+    ]
     """Folders of run directories (advisor-jax sweep's --out, train's runs, kept run data)."""
     out: Annotated[Path, tyro.conf.arg(metavar="OUT")]
     """Where the PNG and JSON files go."""

@@ -19,7 +19,7 @@ from advisor_jax.study.spec import StudyError, load_study
 @flowing
 @dataclasses.dataclass(frozen=True)
 class SweepArgs:
-    """Train every agent of a study file: its pieces on every local GPU at once.
+    """Train every agent of a study file (or several): its pieces on every local GPU at once.
 
     Examples:
       advisor-jax sweep experiments/studies/quick.toml --out runs/quick --dry-run
@@ -27,13 +27,21 @@ class SweepArgs:
       advisor-jax sweep experiments/paper/fig6.toml --out runs/fig6      # again: resumes
       advisor-jax sweep experiments/paper/fig6.toml --out runs/fig6 --slurm fig6.sh \
           --device-memory 80 --device-kind "NVIDIA H100 80GB HBM3"      # then: sbatch fig6.sh
+      advisor-jax sweep experiments/paper/fig7.toml experiments/paper/fig11.toml \
+          --out runs/paper --time-limit 50            # runs/paper/fig7/, runs/paper/fig11/
     """
 
-    study: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="STUDY")]
-    """The study file (TOML; docs/sweeps.md)."""
+    study: Annotated[
+        tuple[Path, ...],
+        tyro.conf.Positional,
+        tyro.conf.arg(metavar="STUDY...", help_behavior_hint="(required)"),
+    ]
+    """The study file (TOML; docs/sweeps.md), or several: their pieces share the devices,
+    the first study's first, each in DIR/<its name>."""
     out: Annotated[Path, tyro.conf.arg(metavar="DIR")]
-    """Directory of the sweep: plan.json, runs/<piece>/, logs/. A second call skips the
-    finished pieces and resumes interrupted ones from their checkpoints."""
+    """Directory of the sweep: plan.json, runs/<piece>/, logs/ (of several studies: one
+    such directory per study inside it). A second call skips the finished pieces and
+    resumes interrupted ones from their checkpoints."""
     dry_run: bool = False
     """Print the plan (pieces, memory, estimated time) and train nothing."""
     piece: int | None = None
@@ -68,9 +76,9 @@ class SweepArgs:
     """Hide the progress display."""
 
 
-def _plan(args: SweepArgs, study):
-    """The kept plan of --out, else a new one for the devices at hand (or described)."""
-    kept = sweep.load_plan(args.out, study)
+def _plan(args: SweepArgs, study, out: Path):
+    """The kept plan of ``out``, else a new one for the devices at hand (or described)."""
+    kept = sweep.load_plan(out, study)
     if kept is not None:
         return kept, True
     if args.device_memory is not None:
@@ -122,17 +130,25 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
 
 def sweep_command(args: SweepArgs) -> None:
     """Entry point of ``advisor-jax sweep``."""
-    study = load_study(args.study)  # every check before anything compiles
+    if not args.study:
+        raise StudyError("name a STUDY file")
+    studies = [load_study(path) for path in args.study]  # every check before anything compiles
     if not str(args.out).strip():
         raise StudyError("--out '' is empty: name the sweep's directory")
+    names = [study.name for study in studies]
+    if len(set(names)) < len(names):
+        raise StudyError(f"studies {names}: each needs its own name (DIR/<name>)")
+    if len(studies) > 1 and (args.piece is not None or args.slurm is not None):
+        raise StudyError("--piece and --slurm take one STUDY (a task trains one piece of one)")
+    outs = [args.out] if len(studies) == 1 else [args.out / name for name in names]
     console = Console(stderr=True)
     if not console.is_terminal:
         console = Console(stderr=True, width=160)
-    plan, kept = _plan(args, study)
-    if args.slurm is not None and plan.device.processes > 1:
+    planned = [_plan(args, study, out) for study, out in zip(studies, outs, strict=True)]
+    if args.slurm is not None and planned[0][0].device.processes > 1:
         raise StudyError(
-            f"--per-device {plan.device.processes} is for local runs: a Slurm task trains one "
-            "piece; plan this --out without --per-device"
+            f"--per-device {planned[0][0].device.processes} is for local runs: a Slurm task "
+            "trains one piece; plan this --out without --per-device"
         )
     if args.time_limit is not None:
         if args.time_limit <= 0:
@@ -142,42 +158,75 @@ def sweep_command(args: SweepArgs) -> None:
                 "--time-limit is for local runs: it chooses which pieces to start, and "
                 "--dry-run, --piece and --slurm start none"
             )
+    jobs = [
+        sweep.Job(study, out, plan)
+        for study, out, (plan, _) in zip(studies, outs, planned, strict=True)
+    ]
+    kept = [was_kept for _, was_kept in planned]
     if args.dry_run:
-        print_plan(console, study, plan, args.out, kept)
+        for job, was_kept in zip(jobs, kept, strict=True):
+            print_plan(console, job.study, job.plan, job.out, was_kept)
+        _print_total(console, [job.plan for job in jobs])
         return
-    args.out.mkdir(parents=True, exist_ok=True)
-    if not kept:
-        sweep.save_plan(args.out, study, plan)
+    for job, was_kept in zip(jobs, kept, strict=True):
+        job.out.mkdir(parents=True, exist_ok=True)
+        if not was_kept:
+            sweep.save_plan(job.out, job.study, job.plan)
+    job = jobs[0]
     if args.piece is not None:
-        how = sweep.run_piece(study, args.out, plan, args.piece, progress=not args.no_progress)
+        how = sweep.run_piece(job.study, job.out, job.plan, args.piece, not args.no_progress)
         console.print(
-            f"piece {args.piece}: {how} ({sweep.run_dir(args.out, plan.pieces[args.piece])})"
+            f"piece {args.piece}: {how} ({sweep.run_dir(job.out, job.plan.pieces[args.piece])})"
         )
         return
     if args.slurm is not None:
-        sweep.write_slurm(args.slurm, study, args.out, plan, list(args.sbatch))
-        print_plan(console, study, plan, args.out, kept)
+        sweep.write_slurm(args.slurm, job.study, job.out, job.plan, list(args.sbatch))
+        print_plan(console, job.study, job.plan, job.out, kept[0])
         console.print(f"wrote {args.slurm}: submit it with  sbatch {args.slurm}")
         return
-    print_plan(console, study, plan, args.out, kept)
+    for job, was_kept in zip(jobs, kept, strict=True):
+        print_plan(console, job.study, job.plan, job.out, was_kept)
     devices = planning.local_devices()[: args.devices or None]
     limit = None if args.time_limit is None else 60.0 * args.time_limit
-    result = sweep.run_local(
-        study, args.out, plan, devices, not args.no_progress, console, time_limit=limit
-    )
-    failed = [i for i, status in result.items() if status == sweep.FAILED]
+    result = sweep.run_jobs(jobs, devices, not args.no_progress, console, time_limit=limit)
+    _closing(console, args, jobs, result)
+
+
+def _print_total(console: Console, plans: list) -> None:
+    """Several studies: their estimated device-hours together."""
+    if len(plans) < 2:
+        return
+    known = [p.seconds for plan in plans for p in plan.pieces if p.seconds is not None]
+    unknown = sum(p.seconds is None for plan in plans for p in plan.pieces)
+    text = f"all {len(plans)} studies: {sum(known) / 3600:.2f} device-hours estimated"
+    console.print(text + (f" ({unknown} pieces without an estimate)" if unknown else ""))
+
+
+def _closing(console: Console, args: SweepArgs, jobs: list, result: dict) -> None:
+    """What finished, what failed (an error) and what --time-limit left, per study."""
+    failed = {(j, i) for (j, i), status in result.items() if status == sweep.FAILED}
     if failed:
         raise StudyError(
-            f"pieces {', '.join(map(str, failed))} failed (see {args.out / 'logs'}); the others "
-            "are kept: run the same command again to retry them"
+            "pieces failed: "
+            + "; ".join(
+                f"{', '.join(str(i) for jj, i in sorted(failed) if jj == j)} of {job.out} "
+                f"(see {job.out / 'logs'})"
+                for j, job in enumerate(jobs)
+                if any(jj == j for jj, _ in failed)
+            )
+            + "; the others are kept: run the same command again to retry them"
         )
-    left = [i for i, status in result.items() if status == sweep.LEFT]
-    done = len(plan.pieces) - len(left)
-    console.print(f"{done} of {len(plan.pieces)} pieces finished in {args.out / 'runs'}")
-    if left:
-        console.print(
-            f"pieces {', '.join(map(str, sorted(left)))} would not end within --time-limit "
-            f"{args.time_limit:g}: run the same command again to train them"
-        )
-    else:
-        console.print(f"next: advisor-jax report {args.out} --out REPORT")
+    any_left = False
+    for j, job in enumerate(jobs):
+        left = sorted(i for (jj, i), status in result.items() if jj == j and status == sweep.LEFT)
+        n = len(job.plan.pieces)
+        console.print(f"{n - len(left)} of {n} pieces finished in {job.out / 'runs'}")
+        if left:
+            any_left = True
+            console.print(
+                f"pieces {', '.join(map(str, left))} of {job.out} would not end within "
+                f"--time-limit {args.time_limit:g}: run the same command again to train them"
+            )
+    if not any_left:
+        dirs = " ".join(str(job.out) for job in jobs)
+        console.print(f"next: advisor-jax report {dirs} --out REPORT")

@@ -4,10 +4,11 @@
     DIR/runs/<piece>/      a run directory per piece (``advisor-jax train``'s files)
     DIR/logs/<piece>.log   the output of the worker that trained it
 
-``run_local`` starts one worker process per free device (``advisor-jax sweep STUDY --out DIR
+``run_jobs`` starts one worker process per free device (``advisor-jax sweep STUDY --out DIR
 --piece I``, pinned with ``CUDA_VISIBLE_DEVICES``; on a CPU-only machine one at a time), or
-``--per-device`` K of them, each with 1/K of XLA's memory share, and shows one progress
-display for the whole study, read from each piece's ``train_log.jsonl``.
+``--per-device`` K of them, each with 1/K of XLA's memory share, for the pieces of one or
+several studies (a ``Job`` each: study, DIR, plan), and shows one progress display for them
+all, read from each piece's ``train_log.jsonl``; ``run_local`` is one study's.
 ``run_piece`` is what a worker (or a Slurm array task) does: nothing for a finished piece,
 ``--resume`` for one started before (a checkpoint, or afresh if it was killed before its
 first), a fresh run otherwise. Pieces never talk to each other; DIR collects them.
@@ -171,8 +172,18 @@ def _episodes_done(path: Path, agents: int) -> float:
         return 0.0
 
 
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """One study's sweep: its file, its DIR and its plan."""
+
+    study: Study
+    out: Path
+    plan: Plan
+
+
 @dataclasses.dataclass
 class _Worker:
+    job: int  # index into the jobs
     piece: Piece
     device: Device
     process: subprocess.Popen
@@ -200,24 +211,47 @@ def run_local(
     console: Console | None = None,
     time_limit: float | None = None,
 ) -> dict[int, str]:
-    """Every unfinished piece, ``plan.device.processes`` workers per device at a time,
-    longest first; returns {piece: "finished" | "failed" | "left"}. With ``time_limit``
-    (seconds) a free worker takes the longest piece predicted to end in time
-    (``first_fitting``; the ratio starts at the workers per device, a shared GPU's
-    slowdown, and becomes the median of what finished pieces took against their estimates);
-    pieces that fit nowhere are "left" for the next call. Ctrl-C stops the workers (each
-    checkpoints)."""
+    """``run_jobs`` of one study: {piece: "finished" | "failed" | "left"}."""
+    result = run_jobs([Job(study, out, plan)], devices, progress, console, time_limit)
+    return {index: status for (_, index), status in result.items()}
+
+
+def run_jobs(
+    jobs: list[Job],
+    devices: list[Device],
+    progress: bool = True,
+    console: Console | None = None,
+    time_limit: float | None = None,
+) -> dict[tuple[int, int], str]:
+    """Every unfinished piece of every job, ``plan.device.processes`` workers per device at a
+    time, the jobs in their order and each job's pieces longest first; returns {(job,
+    piece): "finished" | "failed" | "left"}. With ``time_limit`` (seconds) a free worker
+    takes the first piece predicted to end in time (``first_fitting``; the ratio starts at
+    the workers per device, a shared GPU's slowdown, and becomes the median of what
+    finished pieces took against their estimates); pieces that fit nowhere are "left" for
+    the next call. Ctrl-C stops the workers (each checkpoints)."""
     console = console or Console(stderr=True)
-    (out / "logs").mkdir(parents=True, exist_ok=True)
-    episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
-    total = {p.index: p.agents * episodes[p.group] for p in plan.pieces}
-    result = {p.index: "finished" for p in plan.pieces if run_status(run_dir(out, p)) == "finished"}
-    queue = sorted(
-        (p for p in plan.pieces if p.index not in result), key=lambda p: -(p.seconds or p.agents)
-    )
-    processes = plan.device.processes
+    processes = {job.plan.device.processes for job in jobs}
+    if len(processes) > 1:
+        raise StudyError(
+            "the kept plans of "
+            + ", ".join(f"{job.out} (--per-device {job.plan.device.processes})" for job in jobs)
+            + " differ in --per-device: run them in separate calls"
+        )
+    (processes,) = processes
+    total, result, queue = {}, {}, []
+    for j, job in enumerate(jobs):
+        (job.out / "logs").mkdir(parents=True, exist_ok=True)
+        study = job.study
+        episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
+        for p in job.plan.pieces:
+            total[j, p.index] = p.agents * episodes[p.group]
+            if run_status(run_dir(job.out, p)) == "finished":
+                result[j, p.index] = "finished"
+        todo = [p for p in job.plan.pieces if (j, p.index) not in result]
+        queue += [(j, p) for p in sorted(todo, key=lambda p: -(p.seconds or p.agents))]
     free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
-    running = []
+    running: list[_Worker] = []
     deadline = None if time_limit is None else time.monotonic() + time_limit
     ratios: list[float] = []
     columns = (
@@ -228,21 +262,23 @@ def run_local(
         TimeElapsedColumn(),
     )
     with Progress(*columns, console=console, disable=not progress) as bar:
-        overall = bar.add_task(f"[bold]{study.name}", total=sum(total.values()))
+        title = " + ".join(job.study.name for job in jobs)
+        overall = bar.add_task(f"[bold]{title}", total=sum(total.values()))
         try:
             while queue or running:
                 while queue and free:
                     left = None if deadline is None else deadline - time.monotonic()
                     ratio = statistics.median(ratios) if ratios else float(processes)
-                    i = first_fitting(queue, left, ratio)
+                    i = first_fitting([p for _, p in queue], left, ratio)
                     if i is None:
                         break
-                    piece, device = queue.pop(i), free.pop(0)
-                    running.append(_start(study, out, piece, device, bar, total))
+                    (j, piece), device = queue.pop(i), free.pop(0)
+                    running.append(_start(jobs, j, piece, device, bar, total))
                 if not running:
                     break  # what is queued fits in no time that is left
                 time.sleep(1.0)
                 for w in list(running):
+                    out = jobs[w.job].out
                     done = _episodes_done(run_dir(out, w.piece), w.piece.agents)
                     bar.update(w.task, completed=done)
                     if w.process.poll() is None:
@@ -252,29 +288,33 @@ def run_local(
                     free.append(w.device)
                     bar.remove_task(w.task)
                     ok = w.process.returncode == 0
-                    result[w.piece.index] = "finished" if ok else FAILED
+                    result[w.job, w.piece.index] = "finished" if ok else FAILED
                     if ok and w.piece.seconds:
                         ratios.append((time.monotonic() - w.started) / w.piece.seconds)
                     if not ok:
                         console.print(
-                            f"[red]piece {w.piece.index} ({w.piece.name}) failed "
+                            f"[red]piece {w.piece.index} ({w.piece.name}) of {out} failed "
                             f"(exit {w.process.returncode}); see "
                             f"{out / 'logs' / w.piece.name}.log[/]"
                         )
-                finished = [i for i, s in result.items() if s == "finished"]
-                live = sum(_episodes_done(run_dir(out, w.piece), w.piece.agents) for w in running)
-                bar.update(overall, completed=sum(total[i] for i in finished) + live)
+                finished = [k for k, s in result.items() if s == "finished"]
+                live = sum(
+                    _episodes_done(run_dir(jobs[w.job].out, w.piece), w.piece.agents)
+                    for w in running
+                )
+                bar.update(overall, completed=sum(total[k] for k in finished) + live)
         except KeyboardInterrupt:
             for w in running:  # a worker checkpoints on SIGINT (and on the terminal's Ctrl-C)
                 w.process.send_signal(2)
             for w in running:
                 w.process.wait()
             raise
-    result.update({p.index: LEFT for p in queue})
+    result.update({(j, p.index): LEFT for j, p in queue})
     return result
 
 
-def _start(study, out, piece, device, bar, total) -> _Worker:
+def _start(jobs, j, piece, device, bar, total) -> _Worker:
+    study, out = jobs[j].study, jobs[j].out
     here = str(Path(__file__).resolve().parents[2])  # the worker runs this very package
     paths = [here, *(p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p)]
     env = dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.pathsep.join(paths))
@@ -296,9 +336,10 @@ def _start(study, out, piece, device, bar, total) -> _Worker:
     ]
     log = open(out / "logs" / f"{piece.name}.log", "ab")
     where = "cpu" if device.index is None else f"GPU {device.index}"
-    task = bar.add_task(f"  {piece.name} ({where})", total=total[piece.index])
+    name = piece.name if len(jobs) == 1 else f"{study.name}/{piece.name}"
+    task = bar.add_task(f"  {name} ({where})", total=total[j, piece.index])
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
-    return _Worker(piece, device, process, log, task, time.monotonic())
+    return _Worker(j, piece, device, process, log, task, time.monotonic())
 
 
 # -- a cluster ------------------------------------------------------------------------------

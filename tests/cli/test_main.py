@@ -136,3 +136,9 @@ def test_hp_without_a_value_answers_with_the_hp_syntax(capsys):
     assert code == 2 and "--hp expects NAME=VALUE, e.g. --hp beta=0.1, got 'beta'" in err
     code, _, err = _run(["train", "--grid", "beta"], capsys)
     assert code == 2 and "--grid expects NAME=V1,V2,..." in err
+
+
+@pytest.mark.parametrize("command", ["sweep", "report", "evaluate", "export"])
+def test_no_help_shows_an_empty_default(command, capsys):
+    code, out, _ = _run([command, "--help"], capsys)
+    assert code == 0 and "(default: )" not in out and "{None}" not in out

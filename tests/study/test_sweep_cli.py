@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -201,3 +202,63 @@ def test_time_limit_is_checked_before_anything_runs(study_file, tmp_path, capsys
             main(["sweep", str(study_file), "--out", str(out), *bad])
         assert exit_.value.code == 2 and message in capsys.readouterr().err
     assert not out.exists()
+
+
+def _second_study(tmp_path, name="other"):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(textwrap.dedent(STUDY).replace('name = "tiny"', f'name = "{name}"'))
+    return path
+
+
+def test_several_studies_plan_into_one_dir_each_and_share_the_devices(
+    study_file, tmp_path, monkeypatch, capsys
+):
+    other = _second_study(tmp_path)
+    out = tmp_path / "o"
+    main(["sweep", str(study_file), str(other), "--out", str(out), "--dry-run"])
+    err = capsys.readouterr().err
+    assert "tiny: 2 pieces" in err and "other: 2 pieces" in err and "all 2 studies" in err
+    assert not out.exists()
+
+    started = []
+
+    class FakeProcess:  # a worker that has finished when first polled
+        def __init__(self, command, env, **_):
+            started.append((command[command.index("--out") + 1], command[-2]))
+            self.returncode = None
+
+        def poll(self):
+            self.returncode = 0
+            return 0
+
+    monkeypatch.setattr(sweep.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(sweep.time, "sleep", lambda _: None)
+    main(["sweep", str(study_file), str(other), "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert (out / "tiny" / "plan.json").is_file() and (out / "other" / "plan.json").is_file()
+    assert [Path(o).name for o, _ in started] == ["tiny", "tiny", "other", "other"]  # in order
+    assert "2 of 2 pieces finished in" in err and f"advisor-jax report {out / 'tiny'}" in err
+
+
+def test_several_studies_need_their_own_names_and_no_piece(study_file, tmp_path, capsys):
+    twin = tmp_path / "twin.toml"  # another file, the same name
+    twin.write_text(study_file.read_text())
+    other = str(_second_study(tmp_path))
+    for args, message in (([str(twin)], "each needs its own name"),
+                          ([other, "--piece", "0"], "take one STUDY")):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_:
+            main(["sweep", str(study_file), *args, "--out", str(tmp_path / "o")])
+        assert exit_.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_kept_plans_of_different_per_device_are_run_apart(study_file, tmp_path):
+    from advisor_jax.study import plan as planning
+    from advisor_jax.study.spec import StudyError
+
+    study = load_study(study_file)
+    plans = [planning.plan_study(study, planning.Device("G", 80 << 30, 0, processes=k), 1)
+             for k in (1, 2)]  # fmt: skip
+    jobs = [sweep.Job(study, tmp_path / f"o{k}", plan) for k, plan in enumerate(plans)]
+    with pytest.raises(StudyError, match="differ in --per-device"):
+        sweep.run_jobs(jobs, [planning.Device("G", 80 << 30, 0)], progress=False)
