@@ -116,16 +116,24 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
     console.print(table)
     for line in plan.explained:
         console.print(f"  {line}", highlight=False)
-    makespan = plan.makespan()
+    finished = _finished(plan, out)
+    makespan = plan.makespan(skip=finished)
     if makespan is None:
         console.print("  estimated time: unknown (see above)")
     else:
-        hours = sum(p.seconds for p in plan.pieces) / 3600
+        hours = sum(p.seconds for p in plan.pieces if p.index not in finished) / 3600
+        of = f" for the {len(plan.pieces) - len(finished)} unfinished pieces" if finished else ""
         console.print(
-            f"  estimated time: {hours:.2f} device-hours; {makespan / 60:.0f} min on "
+            f"  estimated time{of}: {hours:.2f} device-hours; {makespan / 60:.0f} min on "
             f"{plan.devices} device(s), longest pieces first",
             highlight=False,
         )
+
+
+def _finished(plan, out: Path) -> frozenset[int]:
+    return frozenset(
+        p.index for p in plan.pieces if sweep.run_status(sweep.run_dir(out, p)) == "finished"
+    )
 
 
 def sweep_command(args: SweepArgs) -> None:
@@ -166,7 +174,7 @@ def sweep_command(args: SweepArgs) -> None:
     if args.dry_run:
         for job, was_kept in zip(jobs, kept, strict=True):
             print_plan(console, job.study, job.plan, job.out, was_kept)
-        _print_total(console, [job.plan for job in jobs])
+        _print_total(console, jobs)
         return
     for job, was_kept in zip(jobs, kept, strict=True):
         job.out.mkdir(parents=True, exist_ok=True)
@@ -192,13 +200,17 @@ def sweep_command(args: SweepArgs) -> None:
     _closing(console, args, jobs, result)
 
 
-def _print_total(console: Console, plans: list) -> None:
-    """Several studies: their estimated device-hours together."""
-    if len(plans) < 2:
+def _print_total(console: Console, jobs: list) -> None:
+    """Several studies: the estimated device-hours of their unfinished pieces together."""
+    if len(jobs) < 2:
         return
-    known = [p.seconds for plan in plans for p in plan.pieces if p.seconds is not None]
-    unknown = sum(p.seconds is None for plan in plans for p in plan.pieces)
-    text = f"all {len(plans)} studies: {sum(known) / 3600:.2f} device-hours estimated"
+    todo = []
+    for job in jobs:
+        done = _finished(job.plan, job.out)
+        todo += [p for p in job.plan.pieces if p.index not in done]
+    known = sum(p.seconds for p in todo if p.seconds is not None)
+    unknown = sum(p.seconds is None for p in todo)
+    text = f"all {len(jobs)} studies: {known / 3600:.2f} device-hours estimated for the rest"
     console.print(text + (f" ({unknown} pieces without an estimate)" if unknown else ""))
 
 

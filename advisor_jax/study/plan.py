@@ -151,11 +151,13 @@ class Plan:
     explained: tuple[str, ...]  # how it was decided, one line each
     max_agents: int | None = None  # --max-agents, part of how the pieces were cut
 
-    def makespan(self) -> float | None:
-        """Seconds until the last device is done, pieces placed longest first."""
-        if any(p.seconds is None for p in self.pieces):
+    def makespan(self, skip: frozenset[int] = frozenset()) -> float | None:
+        """Seconds until the last device is done, pieces placed longest first (those in
+        ``skip``, e.g. finished, left out)."""
+        pieces = [p for p in self.pieces if p.index not in skip]
+        if any(p.seconds is None for p in pieces):
             return None
-        return _makespan(self.pieces, self.devices)
+        return _makespan(pieces, self.devices)
 
 
 def _work(piece: Piece) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import textwrap
 from pathlib import Path
 
@@ -42,6 +43,27 @@ def test_dry_run_prints_the_plan_and_writes_nothing(study_file, tmp_path, capsys
     assert "advisor_episodes=0 | advisor_episodes=2" in err
     assert "estimated time" in err
     assert not out.exists()
+
+
+def test_the_estimate_counts_only_the_unfinished_pieces(study_file, tmp_path, capsys):
+    from advisor_jax.study import plan as planning
+    from advisor_jax.study import throughput
+
+    def hours(err):
+        return float(re.search(r"(\d+\.\d+) device-hours", err).group(1))
+
+    out = tmp_path / "sweep"
+    main(["sweep", str(study_file), "--out", str(out), "--dry-run", "--devices", "1"])
+    whole = capsys.readouterr().err
+    study = load_study(study_file)
+    plan = planning.plan_study(study, planning.local_devices()[0], 1, None, throughput.load_table())
+    finished = out / "runs" / plan.pieces[0].name  # as a kept run directory says it
+    finished.mkdir(parents=True)
+    (finished / "run.json").write_text(json.dumps({"status": "finished"}))
+    main(["sweep", str(study_file), "--out", str(out), "--dry-run", "--devices", "1"])
+    rest = capsys.readouterr().err
+    assert f"for the {len(plan.pieces) - 1} unfinished pieces" in rest
+    assert 0 < hours(rest) < hours(whole)
 
 
 def test_slurm_writes_a_job_array_of_the_pieces_and_keeps_the_plan(study_file, tmp_path, capsys):
