@@ -136,11 +136,8 @@ def _finished(plan, out: Path) -> frozenset[int]:
     )
 
 
-def sweep_command(args: SweepArgs) -> None:
-    """Entry point of ``advisor-jax sweep``."""
-    if not args.study:
-        raise StudyError("name a STUDY file")
-    studies = [load_study(path) for path in args.study]  # every check before anything compiles
+def _check(args: SweepArgs, studies: list) -> None:
+    """The options against each other and the studies: one-line errors before any plan."""
     if not str(args.out).strip():
         raise StudyError("--out '' is empty: name the sweep's directory")
     names = [study.name for study in studies]
@@ -148,7 +145,23 @@ def sweep_command(args: SweepArgs) -> None:
         raise StudyError(f"studies {names}: each needs its own name (DIR/<name>)")
     if len(studies) > 1 and (args.piece is not None or args.slurm is not None):
         raise StudyError("--piece and --slurm take one STUDY (a task trains one piece of one)")
-    outs = [args.out] if len(studies) == 1 else [args.out / name for name in names]
+    if args.time_limit is not None:
+        if args.time_limit <= 0:
+            raise StudyError(f"--time-limit {args.time_limit:g}: give a positive number of minutes")
+        if args.dry_run or args.piece is not None or args.slurm is not None:
+            raise StudyError(
+                "--time-limit is for local runs: it chooses which pieces to start, and "
+                "--dry-run, --piece and --slurm start none"
+            )
+
+
+def sweep_command(args: SweepArgs) -> None:
+    """Entry point of ``advisor-jax sweep``."""
+    if not args.study:
+        raise StudyError("name a STUDY file")
+    studies = [load_study(path) for path in args.study]  # every check before anything compiles
+    _check(args, studies)
+    outs = [args.out] if len(studies) == 1 else [args.out / study.name for study in studies]
     console = Console(stderr=True)
     if not console.is_terminal:
         console = Console(stderr=True, width=160)
@@ -158,14 +171,6 @@ def sweep_command(args: SweepArgs) -> None:
             f"--per-device {planned[0][0].device.processes} is for local runs: a Slurm task "
             "trains one piece; plan this --out without --per-device"
         )
-    if args.time_limit is not None:
-        if args.time_limit <= 0:
-            raise StudyError(f"--time-limit {args.time_limit:g}: give a positive number of minutes")
-        if args.dry_run or args.piece is not None or args.slurm is not None:
-            raise StudyError(
-                "--time-limit is for local runs: it chooses which pieces to start, and "
-                "--dry-run, --piece and --slurm start none"
-            )
     jobs = [
         sweep.Job(study, out, plan)
         for study, out, (plan, _) in zip(studies, outs, planned, strict=True)
