@@ -116,7 +116,7 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
     console.print(table)
     for line in plan.explained:
         console.print(f"  {line}", highlight=False)
-    finished = _finished(plan, out)
+    finished = sweep.finished_pieces(out, plan)
     makespan = plan.makespan(skip=finished)
     if makespan is None:
         console.print("  estimated time: unknown (see above)")
@@ -128,12 +128,6 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
             f"{plan.devices} device(s), longest pieces first",
             highlight=False,
         )
-
-
-def _finished(plan, out: Path) -> frozenset[int]:
-    return frozenset(
-        p.index for p in plan.pieces if sweep.run_status(sweep.run_dir(out, p)) == "finished"
-    )
 
 
 def _check(args: SweepArgs, studies: list) -> None:
@@ -211,7 +205,7 @@ def _print_total(console: Console, jobs: list) -> None:
         return
     todo = []
     for job in jobs:
-        done = _finished(job.plan, job.out)
+        done = sweep.finished_pieces(job.out, job.plan)
         todo += [p for p in job.plan.pieces if p.index not in done]
     known = sum(p.seconds for p in todo if p.seconds is not None)
     unknown = sum(p.seconds is None for p in todo)
@@ -221,21 +215,23 @@ def _print_total(console: Console, jobs: list) -> None:
 
 def _closing(console: Console, args: SweepArgs, jobs: list, result: dict) -> None:
     """What finished, what failed (an error) and what --time-limit left, per study."""
-    failed = {(j, i) for (j, i), status in result.items() if status == sweep.FAILED}
+
+    def pieces(j: int, status: str) -> list[int]:
+        return sorted(i for (jj, i), s in result.items() if jj == j and s == status)
+
+    failed = [
+        f"{', '.join(map(str, pieces(j, sweep.FAILED)))} of {job.out} (see {job.out / 'logs'})"
+        for j, job in enumerate(jobs)
+        if pieces(j, sweep.FAILED)
+    ]
     if failed:
         raise StudyError(
-            "pieces failed: "
-            + "; ".join(
-                f"{', '.join(str(i) for jj, i in sorted(failed) if jj == j)} of {job.out} "
-                f"(see {job.out / 'logs'})"
-                for j, job in enumerate(jobs)
-                if any(jj == j for jj, _ in failed)
-            )
-            + "; the others are kept: run the same command again to retry them"
+            f"pieces failed: {'; '.join(failed)}; the others are kept: run the same command "
+            "again to retry them"
         )
     any_left = False
     for j, job in enumerate(jobs):
-        left = sorted(i for (jj, i), status in result.items() if jj == j and status == sweep.LEFT)
+        left = pieces(j, sweep.LEFT)
         n = len(job.plan.pieces)
         console.print(f"{n - len(left)} of {n} pieces finished in {job.out / 'runs'}")
         if left:

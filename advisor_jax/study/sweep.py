@@ -52,6 +52,11 @@ def run_status(path: Path) -> str | None:
         return "running"
 
 
+def finished_pieces(out: Path, plan: Plan) -> frozenset[int]:
+    """Indices of the plan's pieces whose run in ``out`` has finished (kept copies count)."""
+    return frozenset(p.index for p in plan.pieces if run_status(run_dir(out, p)) == "finished")
+
+
 def piece_command(study: Study, out: Path, index: int | str, plan: Plan) -> str:
     """The command that trains piece ``index``, with the options that cut the pieces."""
     words = ["advisor-jax", "sweep", str(study.path), "--out", str(out), "--piece", str(index)]
@@ -189,7 +194,7 @@ class _Worker:
     process: subprocess.Popen
     log: object
     task: int
-    started: float = 0.0  # time.monotonic()
+    started: float  # time.monotonic()
 
 
 def first_fitting(queue: list[Piece], seconds_left: float | None, ratio: float) -> int | None:
@@ -244,11 +249,10 @@ def run_jobs(
         (job.out / "logs").mkdir(parents=True, exist_ok=True)
         study = job.study
         episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
-        for p in job.plan.pieces:
-            total[j, p.index] = p.agents * episodes[p.group]
-            if run_status(run_dir(job.out, p)) == "finished":
-                result[j, p.index] = "finished"
-        todo = [p for p in job.plan.pieces if (j, p.index) not in result]
+        done = finished_pieces(job.out, job.plan)
+        total |= {(j, p.index): p.agents * episodes[p.group] for p in job.plan.pieces}
+        result |= {(j, i): "finished" for i in done}
+        todo = [p for p in job.plan.pieces if p.index not in done]
         queue += [(j, p) for p in sorted(todo, key=lambda p: -(p.seconds or p.agents))]
     free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
     running: list[_Worker] = []
