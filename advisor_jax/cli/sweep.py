@@ -6,6 +6,7 @@ import dataclasses
 from pathlib import Path
 from typing import Annotated
 
+import jax
 import tyro
 from rich.console import Console
 from rich.table import Table
@@ -153,6 +154,10 @@ def sweep_command(args: SweepArgs) -> None:
     """Entry point of ``advisor-jax sweep``."""
     if not args.study:
         raise StudyError("name a STUDY file")
+    if args.piece is None:
+        # This process only plans and starts workers: it keeps JAX (the studies' checks build
+        # populations) off the GPUs, where it would take the memory planned for the workers.
+        jax.config.update("jax_platforms", "cpu")
     studies = [load_study(path) for path in args.study]  # every check before anything compiles
     _check(args, studies)
     outs = [args.out] if len(studies) == 1 else [args.out / study.name for study in studies]

@@ -45,6 +45,25 @@ def test_dry_run_prints_the_plan_and_writes_nothing(study_file, tmp_path, capsys
     assert not out.exists()
 
 
+def test_the_planning_process_keeps_jax_off_the_gpus(study_file, tmp_path, monkeypatch):
+    """The process that plans and starts workers checks the studies on the CPU: on a GPU it
+    would otherwise take the memory planned for its workers (JAX preallocates on first use)."""
+    from advisor_jax.cli import sweep as sweep_cli
+
+    updates, checked_after = [], []
+    monkeypatch.setattr(sweep_cli.jax.config, "update", lambda k, v: updates.append((k, v)))
+    real_load = sweep_cli.load_study
+    monkeypatch.setattr(
+        sweep_cli, "load_study", lambda path: checked_after.append(list(updates)) or real_load(path)
+    )
+    main(["sweep", str(study_file), "--out", str(tmp_path / "a"), "--dry-run"])
+    assert checked_after == [[("jax_platforms", "cpu")]]
+    updates.clear()
+    with pytest.raises(SystemExit):  # a worker (--piece) trains on its device: left alone
+        main(["sweep", str(study_file), "--out", str(tmp_path / "b"), "--piece", "9"])
+    assert updates == []
+
+
 def test_the_estimate_counts_only_the_unfinished_pieces(study_file, tmp_path, capsys):
     from advisor_jax.study import plan as planning
     from advisor_jax.study import throughput
