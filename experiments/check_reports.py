@@ -5,7 +5,7 @@
 
 Each ``report.md`` names the ``advisor-jax report`` command that made it. This runs that
 command into a temporary folder and compares each JSON file it writes with the kept one,
-leaving out the command itself: a report that no longer regenerates equal (kept run data
+leaving out the command itself and the day it ran: a report that no longer regenerates equal (kept run data
 thinned too far, a code change that moved a number or a label) is listed with the first
 difference, and the exit status is 1. Nothing in results/ is written.
 """
@@ -23,7 +23,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMAND = re.compile(r"Command: `(advisor-jax report [^`]*)`")
-VOLATILE = ("report_command",)  # where the report was written
+VOLATILE = ("report_command", "reported")  # where and on which day the report was written
 
 
 def comparable(value):

@@ -29,6 +29,22 @@ def runs(tmp_path):
     return root
 
 
+@pytest.fixture
+def saved_figures(monkeypatch):
+    """{file name: matplotlib figure} of every PNG a report writes in the test."""
+    import advisor_jax.analysis.report as report
+
+    figures = {}
+    real_save = report.save_png
+
+    def keep(fig, path, **kwargs):
+        figures[path.name] = fig
+        return real_save(fig, path, **kwargs)
+
+    monkeypatch.setattr(report, "save_png", keep)
+    return figures
+
+
 def test_table1_rows_and_the_papers_claim_seed_by_seed(runs, tmp_path):
     out = tmp_path / "report"
     make_report([runs], out, items=["table1"], command="advisor-jax report runs", say=lambda m: 0)
@@ -133,18 +149,9 @@ def test_a_claim_pairs_the_row_that_agrees_on_every_shared_setting(tmp_path):
     assert found[0]["training"]["mean"] == pytest.approx(100 * (0.85 - 0.65))
 
 
-def test_every_figure_labels_its_axes(runs, tmp_path, monkeypatch):
+def test_every_figure_labels_its_axes(runs, tmp_path, saved_figures):
     """Every panel with data has an x and a y label (issue 38: plots without y labels)."""
-    import advisor_jax.analysis.report as report
-
-    figures = {}
-    real_save = report.save_png
-
-    def keep(fig, path, **kwargs):
-        figures[path.name] = fig
-        return real_save(fig, path, **kwargs)
-
-    monkeypatch.setattr(report, "save_png", keep)
+    figures = saved_figures
     make_report([runs], tmp_path / "report", versus_settings=["clip_q_target=1"],
                 say=lambda m: 0)  # fmt: skip
     assert len(figures) >= 3
@@ -186,3 +193,36 @@ def test_advisor_quality_plots_agents_against_their_advisors_own_success(tmp_pat
     assert lfd["control"] is None  # no DDPG among the runs
     assert (out / "advisor_quality.png").is_file()
     assert "agent − control, training (points)" in (out / "report.md").read_text()
+
+
+def test_fig10_gives_the_firing_rate_as_a_share_of_eq11_per_point(tmp_path, saved_figures):
+    """Fig. 10's number is the firing rate / Eq. (11) over episodes w..N_T (here 0.3 / 0.6,
+    by hand), listed per point with its budget; the figure draws one run per type and the
+    share of every point against N_T."""
+    import numpy as np
+
+    from advisor_jax.analysis.items.curves import FIRING_WINDOW
+
+    episodes = 3 * FIRING_WINDOW
+    for n_t in (FIRING_WINDOW * 2, FIRING_WINDOW * 3):
+        run = tmp_path / f"afd{n_t}"
+        write_run(tmp_path, run.name, "ADDPG+AfD", [0, 1], [0.5, 0.6], episodes=episodes,
+                  hp={"advisor_episodes": float(n_t)}, outcome=np.zeros((2, episodes)))  # fmt: skip
+        metrics = dict(np.load(run / "metrics.npz"))
+        metrics["firing_rate"] = np.full((2, episodes), 0.3)
+        metrics["expected_max_firing_rate"] = np.full((2, episodes), 0.6)
+        np.savez(run / "metrics.npz", **metrics)
+    figures = saved_figures
+    out = tmp_path / "report"
+    make_report([tmp_path], out, items=["fig10"], say=lambda m: 0)
+    series = json.loads((out / "fig10.json").read_text())["series"]
+    assert [s["share_of_expected_before_N_T"] for s in series] == pytest.approx([0.5, 0.5])
+    text = (out / "report.md").read_text()
+    assert f"advisor_episodes={2 * FIRING_WINDOW}, {episodes} ep: 0.50" in text
+    left, right = figures["fig10.png"].axes[:2]
+    assert len([ln for ln in left.lines if ln.get_xydata().size]) == 2  # one run: rate, Eq. 11
+    drawn = [ln.get_xydata() for ln in right.lines if ln.get_xydata().size]
+    assert len(drawn) == 1 and drawn[0].tolist() == [
+        [2 * FIRING_WINDOW, 0.5],
+        [3 * FIRING_WINDOW, 0.5],
+    ]

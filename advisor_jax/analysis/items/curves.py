@@ -142,31 +142,18 @@ def fig9(points: list[Point], context) -> Item | None:
 
 
 def fig10(points: list[Point], context) -> Item | None:
+    """Left: the firing rate of one run per agent type (its preset's point at its longest
+    budget) against Eq. (11). Right: every point's firing rate as a share of Eq. (11) while
+    the advisor takes part, against N_T: one curve per type and budget reads as a figure,
+    fifty do not."""
     found = [(p, v) for p, v in _with(points, "firing_rate") if uses_advisor_data(p.agent)]
     found = [(p, v) for p, v in found if p.episodes("expected_max_firing_rate") is not None]
     if not found:
         return None
-    fig, axes = figure(1, 1, width=9.0, height=5.0)
-    ax = axes[0, 0]
 
     def expected(p):
         return np.nanmean(p.episodes("expected_max_firing_rate"), axis=0)
 
-    for i, (p, values) in enumerate(found):
-        mean, sd = _mean_sd(values, FIRING_WINDOW)
-        x = np.arange(1, mean.size + 1)
-        (line,) = ax.plot(
-            x, mean, lw=1.2, color=f"C{i % 10}", label=f"{p.text()} (n={len(p.seeds)})"
-        )
-        ax.fill_between(x, mean - sd, mean + sd, color=line.get_color(), alpha=0.15)
-        ax.plot(x, expected(p), color=line.get_color(), ls="--", lw=1.0)
-    ax.plot([], [], color="0.3", ls="--", label="Eq. (11): expected maximum")
-    episode_axis(ax)
-    ax.set_ylabel(f"actor's firing rate (moving average, {FIRING_WINDOW} episodes)")
-    ax.set_ylim(-0.03, 1.03)
-    ax.set_title("Fig. 10: actor's firing rate, mean ± sd over seeds, and Eq. (11)", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
     record = _record(found, FIRING_WINDOW, lambda p: {"expected_max": _list(expected(p))})
     for entry, (p, _) in zip(record["series"], found, strict=True):
         n_t = int(p.settings["advisor_episodes"])
@@ -176,12 +163,63 @@ def fig10(points: list[Point], context) -> Item | None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             entry["share_of_expected_before_N_T"] = float(np.nanmean(mean[inside] / exp[inside]))
+
+    agents = list(dict.fromkeys(p.agent for p, _ in found))
+    color = {a: f"C{i % 10}" for i, a in enumerate(agents)}
+    fig, axes = figure(1, 2, width=5.5, height=4.4)
+    ax = axes[0, 0]
+    for agent in agents:  # its preset's point (fewest settings changed), longest budget
+        p, values = min(
+            ((q, v) for q, v in found if q.agent == agent),
+            key=lambda qv: (len(qv[0].label), -qv[0].budget),
+        )
+        mean, sd = _mean_sd(values, FIRING_WINDOW)
+        x = np.arange(1, mean.size + 1)
+        ax.plot(x, mean, lw=1.2, color=color[agent], label=f"{p.text()}, {p.budget} ep")
+        ax.fill_between(x, mean - sd, mean + sd, color=color[agent], alpha=0.15)
+        ax.plot(x, expected(p), color=color[agent], ls="--", lw=1.0)
+    ax.plot([], [], color="0.3", ls="--", label="Eq. (11): expected maximum")
+    episode_axis(ax)
+    ax.set_ylabel(f"actor's firing rate (moving average, {FIRING_WINDOW} episodes)")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_title("one run per type, mean ± sd over seeds", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    ax = axes[0, 1]
+    budgets = sorted({p.budget for p, _ in found})
+    markers = dict(zip(budgets, "os^Dv<>ph*", strict=False))
+    for agent in agents:
+        for n in budgets:
+            here = [
+                (p.settings["advisor_episodes"], e["share_of_expected_before_N_T"])
+                for e, (p, _) in zip(record["series"], found, strict=True)
+                if p.agent == agent
+                and p.budget == n
+                and np.isfinite(e["share_of_expected_before_N_T"])
+            ]
+            if here:
+                xs, ys = zip(*sorted(here), strict=True)
+                ax.plot(xs, ys, color=color[agent], marker=markers.get(n, "o"), lw=0.8, ms=4)
+    for agent in agents:
+        ax.plot([], [], color=color[agent], lw=2, label=agent)
+    for n in budgets:
+        ax.plot([], [], color="0.4", marker=markers.get(n, "o"), ls="", label=f"N_total = {n}")
+    ax.set_xlabel("N_T (the advisor's terminal episode)")
+    ax.set_ylabel("firing rate / Eq. (11) while the advisor takes part")
+    ax.set_ylim(0, 1.03)
+    ax.set_title("every point (points of one ε schedule share N_T)", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    fig.suptitle("Fig. 10: the actor's firing rate against Eq. (11)", fontsize=10)
     lines = [
         f"The actor's firing rate, trailing moving average over {FIRING_WINDOW} episodes, mean "
         "± sd over seeds, against Eq. (11)'s expected maximum (dashed). Mean ratio of the "
         "firing rate to Eq. (11) while the advisor takes part (episodes w..N_T):",
         "",
-        *(f"- {e['label']}: {_ratio(e['share_of_expected_before_N_T'])}" for e in record["series"]),
+        *(
+            f"- {e['label']}, {e['episodes']} ep: {_ratio(e['share_of_expected_before_N_T'])}"
+            for e in record["series"]
+        ),
         "",
     ]
     return Item(

@@ -96,7 +96,9 @@ def _sweep_item(name, title, series, x_of, x_label, arenas, skip, lines_of, note
         ax.set_ylabel(f"success, {arena} env (%)")
         ax.set_ylim(-3, 103)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+    # one legend under both panels: inside them it hides the lowest lines' points
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=2, fontsize=7)
     fig.suptitle(title, fontsize=10)
     points = [p for members in series.values() for p in members]
     return Item(name, title, record, fig, lines, points)
