@@ -5,9 +5,10 @@
 
 Each ``report.md`` names the ``advisor-jax report`` command that made it. This runs that
 command into a temporary folder and compares each JSON file it writes with the kept one,
-leaving out the command itself and the day it ran: a report that no longer regenerates equal (kept run data
-thinned too far, a code change that moved a number or a label) is listed with the first
-difference, and the exit status is 1. Nothing in results/ is written.
+leaving out the command itself and the day it ran: a report that no longer regenerates
+equal (kept run data thinned too far, a code change that moved a number or a label) is
+listed with the first difference, and the exit status is 1. Nothing in results/ is
+written.
 """
 
 from __future__ import annotations

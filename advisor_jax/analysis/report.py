@@ -22,7 +22,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from advisor_jax import __version__
+from advisor_jax import __version__, stats
 from advisor_jax.analysis.items import (
     advisor_quality,
     collapse,
@@ -80,6 +80,23 @@ def provenance(item: Item, command: str) -> dict:
     }
 
 
+def point_summary(point) -> dict:
+    """One row of an item's flat ``points`` list (``pandas.DataFrame(record["points"])``):
+    the point and, per arena, its mean success and 95 % t interval over seeds."""
+    row = {
+        "agent": point.agent,
+        "episodes": point.budget,
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in point.label.items()},
+        "seeds": len(point.seeds),
+    }
+    for arena in dict.fromkeys(a for r in point.seeds.values() for a in r.evaluation):
+        values = [v for v in point.scores(arena).values() if v is not None]
+        if values:
+            interval = stats.t_interval(values)
+            row[arena] = {"mean": interval.estimate, "ci95": [interval.low, interval.high]}
+    return row
+
+
 def _strict(x):
     """NaN and infinities → None, tuples → lists: strict JSON."""
     if isinstance(x, dict):
@@ -120,6 +137,7 @@ def make_report(
         record = {
             "item": item.name,
             "title": item.title,
+            "points": [point_summary(p) for p in item.points],  # an item may give its own
             **item.record,
             "provenance": provenance(item, command),
         }

@@ -226,3 +226,17 @@ def test_fig10_gives_the_firing_rate_as_a_share_of_eq11_per_point(tmp_path, save
         [2 * FIRING_WINDOW, 0.5],
         [3 * FIRING_WINDOW, 0.5],
     ]
+
+
+def test_every_item_json_lists_its_points_flat(runs, tmp_path):
+    """Each item's JSON has a flat ``points`` list (agent, budget, settings, seeds, and per
+    arena the mean with its 95 % t interval), whatever its own layout."""
+    out = tmp_path / "report"
+    make_report([runs], out, items=["fig6"], say=lambda m: 0)
+    points = json.loads((out / "fig6.json").read_text())["points"]
+    row = next(p for p in points if p["settings"] == {"advisor_episodes": 0.0})
+    assert (row["agent"], row["seeds"]) == ("ADDPG+AfD", 3)
+    half = 4.302652729911275 * 0.1 / math.sqrt(3)  # t(0.975, 2 dof) × sd / √n, by hand
+    assert row["training"]["mean"] == pytest.approx(0.6)
+    assert row["training"]["ci95"] == pytest.approx([0.6 - half, 0.6 + half])
+    assert row["validation"]["mean"] == pytest.approx(0.5)
