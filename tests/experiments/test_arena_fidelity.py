@@ -14,10 +14,12 @@ def test_the_summary_is_made_from_the_kept_runs(tmp_path):
     record = load_script("arena_fidelity").main(tmp_path)
     cells = {(c["arena"], c["settings"]): c for c in record["cells"]}
     assert set(cells) == {(a, s) for a in ("kinematic", "mjx") for s in ("stable", "paper")}
-    assert set(cells["kinematic", "paper"]["rows"]) == {"ATD3+AfDP", "LfD", "DDPG"}
+    for cell in cells.values():  # every type in every cell (MCP+MF at `paper`: ordering_mcp)
+        assert set(cell["rows"]) == {"ATD3+AfDP", "LfD", "MCP+MF", "DDPG"}
+    seeds = {(*key, t): row["seeds"] for key, c in cells.items() for t, row in c["rows"].items()}
+    assert seeds.pop(("kinematic", "stable", "ATD3+AfDP")) == 32  # Table 1's runs
+    assert set(seeds.values()) == {16}
     mjx = cells["mjx", "stable"]
-    assert set(mjx["rows"]) == {"ATD3+AfDP", "LfD", "MCP+MF", "DDPG"}
-    assert all(row["seeds"] == 16 for row in mjx["rows"].values())
     pair = mjx["pairs"]["ATD3+AfDP - LfD"]["training"]
     assert pair["seeds"] == 16
     committed = json.loads((RESULTS / "arena_fidelity.json").read_text())
