@@ -224,15 +224,25 @@ def _closing(console: Console, args: SweepArgs, jobs: list, result: dict) -> Non
     def pieces(j: int, status: str) -> list[int]:
         return sorted(i for (jj, i), s in result.items() if jj == j and s == status)
 
-    failed = [
-        f"{', '.join(map(str, pieces(j, sweep.FAILED)))} of {job.out} (see {job.out / 'logs'})"
-        for j, job in enumerate(jobs)
-        if pieces(j, sweep.FAILED)
-    ]
-    if failed:
+    def listed(status: str) -> str:
+        return "; ".join(
+            f"{', '.join(map(str, pieces(j, status)))} of {job.out} (see {job.out / 'logs'})"
+            for j, job in enumerate(jobs)
+            if pieces(j, status)
+        )
+
+    failed, stranded = listed(sweep.FAILED), listed(sweep.STRANDED)
+    if failed or stranded:
         raise StudyError(
-            f"pieces failed: {'; '.join(failed)}; the others are kept: run the same command "
-            "again to retry them"
+            (f"pieces failed twice: {failed}" if failed else "")
+            + ("; " if failed and stranded else "")
+            + (
+                f"pieces not started, every device having failed {sweep.RETIRE_AFTER} "
+                f"pieces in a row: {stranded}"
+                if stranded
+                else ""
+            )
+            + "; the others are kept: run the same command again to retry them"
         )
     any_left = False
     for j, job in enumerate(jobs):

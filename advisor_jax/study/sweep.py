@@ -12,6 +12,11 @@ all, read from each piece's ``train_log.jsonl``; ``run_local`` is one study's.
 ``run_piece`` is what a worker (or a Slurm array task) does: nothing for a finished piece,
 ``--resume`` for one started before (a checkpoint, or afresh if it was killed before its
 first), a fresh run otherwise. Pieces never talk to each other; DIR collects them.
+
+A failed piece is started once more, at the end of the queue and on another device where
+there is one (it resumes from its checkpoint); a device on which ``RETIRE_AFTER`` pieces
+failed in a row (out of memory, a broken GPU) takes no more pieces, so one bad device
+cannot fail the whole queue.
 """
 
 from __future__ import annotations
@@ -33,8 +38,10 @@ from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.study.plan import Device, Piece, Plan
 from advisor_jax.study.spec import Study, StudyError
 
-FAILED = "failed"
+FAILED = "failed"  # failed twice (started once more after its first failure)
 LEFT = "left"  # not started: predicted to end after --time-limit
+STRANDED = "stranded"  # not started: every device was taken out after failures in a row
+RETIRE_AFTER = 2  # pieces failed in a row on one device: it takes no more in this call
 
 
 def run_dir(out: Path, piece: Piece) -> Path:
@@ -230,11 +237,12 @@ def run_jobs(
 ) -> dict[tuple[int, int], str]:
     """Every unfinished piece of every job, ``plan.device.processes`` workers per device at a
     time, the jobs in their order and each job's pieces longest first; returns {(job,
-    piece): "finished" | "failed" | "left"}. With ``time_limit`` (seconds) a free worker
-    takes the first piece predicted to end in time (``first_fitting``; the ratio starts at
-    the workers per device, a shared GPU's slowdown, and becomes the median of what
-    finished pieces took against their estimates); pieces that fit nowhere are "left" for
-    the next call. Ctrl-C stops the workers (each checkpoints)."""
+    piece): "finished" | "failed" | "left" | "stranded"}. With ``time_limit`` (seconds) a
+    free worker takes the first piece predicted to end in time (``first_fitting``; the ratio
+    starts at the workers per device, a shared GPU's slowdown, and becomes the median of
+    what finished pieces took against their estimates); pieces that fit nowhere are "left"
+    for the next call. Failures: module docstring ("stranded": no device was left for it).
+    Ctrl-C stops the workers (each checkpoints)."""
     console = console or Console(stderr=True)
     processes = {job.plan.device.processes for job in jobs}
     if len(processes) > 1:
@@ -258,6 +266,9 @@ def run_jobs(
     running: list[_Worker] = []
     deadline = None if time_limit is None else time.monotonic() + time_limit
     ratios: list[float] = []
+    tries: dict[tuple[int, int], list] = {}  # (job, piece) -> the devices it failed on
+    in_a_row: dict = {}  # device index -> pieces failed on it since its last success
+    retired: set = set()
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -276,10 +287,12 @@ def run_jobs(
                     i = first_fitting([p for _, p in queue], left, ratio)
                     if i is None:
                         break
-                    (j, piece), device = queue.pop(i), free.pop(0)
+                    (j, piece) = queue.pop(i)
+                    device = _elsewhere(free, tries.get((j, piece.index), []))
+                    free.remove(device)
                     running.append(_start(jobs, j, piece, device, bar, total))
                 if not running:
-                    break  # what is queued fits in no time that is left
+                    break  # what is queued fits in no time that is left, or on no device
                 time.sleep(1.0)
                 for w in list(running):
                     out = jobs[w.job].out
@@ -289,18 +302,36 @@ def run_jobs(
                         continue
                     w.log.close()
                     running.remove(w)
-                    free.append(w.device)
                     bar.remove_task(w.task)
-                    ok = w.process.returncode == 0
-                    result[w.job, w.piece.index] = "finished" if ok else FAILED
-                    if ok and w.piece.seconds:
-                        ratios.append((time.monotonic() - w.started) / w.piece.seconds)
-                    if not ok:
+                    key, where = (w.job, w.piece.index), w.device.index
+                    if w.process.returncode == 0:
+                        result[key], in_a_row[where] = "finished", 0
+                        if w.piece.seconds:
+                            ratios.append((time.monotonic() - w.started) / w.piece.seconds)
+                    else:
+                        tries.setdefault(key, []).append(where)
+                        in_a_row[where] = in_a_row.get(where, 0) + 1
+                        again = len(tries[key]) == 1
+                        if again:
+                            queue.append((w.job, w.piece))
+                        else:
+                            result[key] = FAILED
                         console.print(
-                            f"[red]piece {w.piece.index} ({w.piece.name}) of {out} failed "
-                            f"(exit {w.process.returncode}); see "
-                            f"{out / 'logs' / w.piece.name}.log[/]"
+                            f"[red]piece {w.piece.index} ({w.piece.name}) of {out} failed on "
+                            f"{_device_name(w.device)} (exit {w.process.returncode}; "
+                            f"{out / 'logs' / w.piece.name}.log)"
+                            + ("; it will be started once more" if again else "")
+                            + "[/]"
                         )
+                        if in_a_row[where] >= RETIRE_AFTER and where not in retired:
+                            retired.add(where)
+                            free = [d for d in free if d.index != where]
+                            console.print(
+                                f"[red]{_device_name(w.device)}: {in_a_row[where]} pieces in a "
+                                "row failed on it; it takes no more pieces in this call[/]"
+                            )
+                    if where not in retired:
+                        free.append(w.device)
                 finished = [k for k, s in result.items() if s == "finished"]
                 live = sum(
                     _episodes_done(run_dir(jobs[w.job].out, w.piece), w.piece.agents)
@@ -313,8 +344,18 @@ def run_jobs(
             for w in running:
                 w.process.wait()
             raise
-    result.update({(j, p.index): LEFT for j, p in queue})
+    stranded = bool(queue) and len(retired) == len({d.index for d in devices})
+    result.update({(j, p.index): STRANDED if stranded else LEFT for j, p in queue})
     return result
+
+
+def _elsewhere(free: list[Device], failed_on: list) -> Device:
+    """The first free device a piece has not failed on (else the first free one)."""
+    return next((d for d in free if d.index not in failed_on), free[0])
+
+
+def _device_name(device: Device) -> str:
+    return "the CPU" if device.index is None else f"GPU {device.index}"
 
 
 def _start(jobs, j, piece, device, bar, total) -> _Worker:
@@ -339,9 +380,8 @@ def _start(jobs, j, piece, device, bar, total) -> _Worker:
         "--no-progress",
     ]
     log = open(out / "logs" / f"{piece.name}.log", "ab")
-    where = "cpu" if device.index is None else f"GPU {device.index}"
     name = piece.name if len(jobs) == 1 else f"{study.name}/{piece.name}"
-    task = bar.add_task(f"  {name} ({where})", total=total[j, piece.index])
+    task = bar.add_task(f"  {name} ({_device_name(device)})", total=total[j, piece.index])
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     return _Worker(j, piece, device, process, log, task, time.monotonic())
 

@@ -184,6 +184,81 @@ def test_run_local_fills_each_device_with_per_device_workers(study_file, tmp_pat
     assert {env["XLA_PYTHON_CLIENT_MEM_FRACTION"] for env in started} == {"0.3750"}
 
 
+def _failing_workers(monkeypatch, fails):
+    """Fake workers that end at their second poll, with exit 1 where ``fails(gpu, piece)``;
+    returns the (gpu, piece) of every start, in order."""
+    started = []
+
+    class FakeProcess:
+        def __init__(self, command, env, **_):
+            where = (env.get("CUDA_VISIBLE_DEVICES"), int(command[command.index("--piece") + 1]))
+            started.append(where)
+            self.code, self.returncode, self.polls = int(fails(*where)), None, 0
+
+        def poll(self):
+            self.polls += 1
+            if self.polls == 2:
+                self.returncode = self.code
+            return self.returncode
+
+    monkeypatch.setattr(sweep.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(sweep.time, "sleep", lambda _: None)
+    return started
+
+
+def test_a_device_that_fails_twice_in_a_row_takes_no_more_and_its_pieces_run_elsewhere(
+    study_file, tmp_path, monkeypatch
+):
+    """GPU 0 fails every piece (its memory taken by another process, as happened on four
+    H200s): after two failures in a row it takes no more, and both pieces are started once
+    more on GPU 1, so the whole study still finishes."""
+    from rich.console import Console
+
+    from advisor_jax.study import plan as planning
+
+    study = load_study(study_file)
+    gpu = planning.Device("G", 80 << 30, 0)
+    plan = planning.plan_study(study, gpu, devices=2, max_agents=1)  # 6 pieces
+    started = _failing_workers(monkeypatch, lambda gpu, piece: gpu == "0")
+    devices = [planning.Device("G", 80 << 30, 0), planning.Device("G", 80 << 30, 1)]
+    console = Console(record=True, width=200)
+    (tmp_path / "o").mkdir()
+    result = sweep.run_local(study, tmp_path / "o", plan, devices, False, console)
+    assert set(result.values()) == {"finished"} and len(result) == 6
+    on_0 = [piece for gpu, piece in started if gpu == "0"]
+    assert len(on_0) == 2 and all((("1", piece) in started) for piece in on_0)
+    assert len(started) == 8
+    text = console.export_text()
+    assert "GPU 0: 2 pieces in a row failed on it; it takes no more pieces" in text
+    assert text.count("it will be started once more") == 2
+
+
+def test_a_piece_that_fails_twice_fails_the_sweep_and_the_rest_is_kept(
+    study_file, tmp_path, monkeypatch, capsys
+):
+    """Piece 0 fails wherever it runs: started twice, then the sweep ends with an error
+    naming it; piece 1 finishes. On a device where everything fails, what the device did
+    not get to is "stranded", not "left" for a time limit."""
+    started = _failing_workers(monkeypatch, lambda gpu, piece: piece == 0)
+    out = tmp_path / "o"
+    with pytest.raises(SystemExit) as exit_:
+        main(["sweep", str(study_file), "--out", str(out), "--no-progress"])
+    err = " ".join(capsys.readouterr().err.split())
+    assert exit_.value.code == 2
+    assert f"pieces failed twice: 0 of {out} (see {out / 'logs'})" in err
+    assert "run the same command again to retry them" in err
+    assert [piece for _, piece in started] == [1, 0, 0]  # longest first; the retry once more
+
+    from advisor_jax.study import plan as planning
+
+    study = load_study(study_file)
+    cpu = planning.Device("cpu", 8 << 30, None)
+    plan = planning.plan_study(study, cpu, devices=1, max_agents=1)  # 6 pieces
+    started = _failing_workers(monkeypatch, lambda gpu, piece: True)
+    result = sweep.run_local(study, tmp_path / "p", plan, [cpu], progress=False)
+    assert len(started) == 2 and set(result.values()) == {"stranded"}
+
+
 def test_first_fitting_takes_the_longest_piece_that_ends_in_time():
     from advisor_jax.study.plan import Piece
 
