@@ -315,6 +315,25 @@ def _explain(study, device, devices, configs, caps, table) -> tuple[str, ...]:
                 "another (no gain assumed from running them at once)"
             )
         )
+        stand_ins = sorted(
+            {
+                (device.kind, cfg.agent.precision, study.preset, measured)
+                for cfg in configs
+                if (
+                    measured := throughput.measured_as(
+                        table, device.kind, cfg.agent.precision, study.preset
+                    )
+                )
+                not in (None, device.kind)
+            }
+        )
+        for kind, precision, preset, measured in stand_ins:
+            lines.append(
+                f"time: nothing measured for {kind}, {precision}, --preset {preset}: the rates "
+                f"of {measured} stand in for it (run python experiments/bench_train.py "
+                f"--preset {preset} --precision {precision} --agents 1 16 64 there, then "
+                "python -m advisor_jax.study.throughput)"
+            )
         for kind, precision, preset in missing:
             lines.append(
                 f"time: nothing measured for {kind}, {precision}, --preset {preset}: run "

@@ -190,13 +190,14 @@ def agent_steps_per_s(
     motion: str = "kinematic",
 ) -> float | None:
     """Interpolated (in log agents, clamped at the ends) env-steps/s of ATD3+AfDP for a
-    population of ``agents`` on one ``device``, times ``motion_factor``; None where nothing
-    was measured."""
+    population of ``agents`` on one ``device`` (or the GPU that ``measured_as`` stands in
+    for it), times ``motion_factor``; None where nothing was measured."""
     size = SIZE_OF_PRESET.get(preset)
+    measured = measured_as(table, device, precision, preset)
     rows = [
         r
         for r in table["rows"]
-        if r["device"] == device and r["precision"] == precision and r["size"] == size
+        if r["device"] == measured and r["precision"] == precision and r["size"] == size
     ]
     if not rows:
         return None
@@ -204,6 +205,22 @@ def agent_steps_per_s(
     ys = np.array([r["agent_steps_per_s"] for r in rows])
     rate = float(np.interp(math.log(max(agents, 1)), xs, ys))
     return rate * motion_factor(table, motion, precision, agents)
+
+
+def measured_as(table: dict, device: str, precision: str, preset: str) -> str | None:
+    """The device whose measured rates estimate ``device``: itself where it was measured at
+    this precision and preset's sizes; for a GPU measured nowhere, the first measured GPU
+    (by name: an estimate, said so in the plan, better than none for ``--time-limit``);
+    None where no GPU was."""
+    size = SIZE_OF_PRESET.get(preset)
+    kinds = sorted(
+        {r["device"] for r in table["rows"] if r["precision"] == precision and r["size"] == size}
+    )
+    if device in kinds:
+        return device
+    if device == "cpu":
+        return None
+    return next((k for k in kinds if k != "cpu"), None)
 
 
 def agent_type(table: dict, agent: str, arena: str, motion: str = "kinematic") -> dict:

@@ -140,9 +140,15 @@ def test_time_from_the_measured_rate_and_the_type(tmp_path):
     steps = 16 * 40 * 50.0  # agents x episodes x steps per episode
     assert piece.seconds == pytest.approx(steps / (1600.0 * 0.5) + throughput.COMPILE_S)
     assert plan.makespan() == piece.seconds
-    unknown = planning.plan_study(s, planning.Device("H", 80 * GIB, 0), table=TABLE)
-    assert unknown.makespan() is None
-    assert "nothing measured for H, fp32, --preset paper" in " ".join(unknown.explained)
+    # another GPU measured nowhere: G's rates stand in, and the plan says so
+    other = planning.plan_study(s, planning.Device("H", 80 * GIB, 0), table=TABLE)
+    assert other.makespan() == piece.seconds
+    text = " ".join(" ".join(other.explained).split())
+    assert "nothing measured for H, fp32, --preset paper: the rates of G stand in for it" in text
+    assert throughput.measured_as(TABLE, "H", "bf16", "paper") is None  # no GPU at bf16
+    unknown = planning.plan_study(s, planning.Device("cpu", 80 * GIB, None), table=TABLE)
+    assert unknown.makespan() is None  # a CPU is never estimated from a GPU
+    assert "nothing measured for cpu, fp32, --preset paper" in " ".join(unknown.explained)
 
 
 def test_time_under_the_mjx_robot_uses_its_measured_speed_and_episode_length(tmp_path):
