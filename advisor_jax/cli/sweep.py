@@ -13,7 +13,7 @@ from rich.table import Table
 
 from advisor_jax.cli.helptext import flowing
 from advisor_jax.study import plan as planning
-from advisor_jax.study import sweep, throughput
+from advisor_jax.study import plan_file, slurm, sweep, throughput
 from advisor_jax.study.spec import StudyError, load_study
 
 
@@ -79,7 +79,7 @@ class SweepArgs:
 
 def _plan(args: SweepArgs, study, out: Path):
     """The kept plan of ``out``, else a new one for the devices at hand (or described)."""
-    kept = sweep.load_plan(out, study)
+    kept = plan_file.load_plan(out, study)
     if kept is not None:
         return kept, True
     if args.device_memory is not None:
@@ -183,7 +183,7 @@ def sweep_command(args: SweepArgs) -> None:
     for job, was_kept in zip(jobs, kept, strict=True):
         job.out.mkdir(parents=True, exist_ok=True)
         if not was_kept:
-            sweep.save_plan(job.out, job.study, job.plan)
+            plan_file.save_plan(job.out, job.study, job.plan)
     job = jobs[0]
     if args.piece is not None:
         how = sweep.run_piece(job.study, job.out, job.plan, args.piece, not args.no_progress)
@@ -192,7 +192,7 @@ def sweep_command(args: SweepArgs) -> None:
         )
         return
     if args.slurm is not None:
-        sweep.write_slurm(args.slurm, job.study, job.out, job.plan, list(args.sbatch))
+        slurm.write_slurm(args.slurm, job.study, job.out, job.plan, list(args.sbatch))
         print_plan(console, job.study, job.plan, job.out, kept[0])
         console.print(f"wrote {args.slurm}: submit it with  sbatch {args.slurm}")
         return

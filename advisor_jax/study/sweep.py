@@ -13,10 +13,8 @@ all, read from each piece's ``train_log.jsonl``; ``run_local`` is one study's.
 ``--resume`` for one started before (a checkpoint, or afresh if it was killed before its
 first), a fresh run otherwise. Pieces never talk to each other; DIR collects them.
 
-A failed piece is started once more, at the end of the queue and on another device where
-there is one (it resumes from its checkpoint); a device on which ``RETIRE_AFTER`` pieces
-failed in a row (out of memory, a broken GPU) takes no more pieces, so one bad device
-cannot fail the whole queue.
+A failed piece is started once more, last and on another device where there is one; a
+device on which ``RETIRE_AFTER`` pieces failed in a row takes no more (``_Failures``).
 """
 
 from __future__ import annotations
@@ -34,7 +32,6 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.study.plan import Device, Piece, Plan
 from advisor_jax.study.spec import Study, StudyError
 
@@ -72,52 +69,6 @@ def piece_command(study: Study, out: Path, index: int | str, plan: Plan) -> str:
     if plan.device.processes > 1:
         words += ["--per-device", str(plan.device.processes)]
     return shlex.join(words)
-
-
-# -- the plan on disk -----------------------------------------------------------------------
-
-
-def save_plan(out: Path, study: Study, plan: Plan) -> None:
-    record = {
-        "study": str(study.path),
-        "name": study.name,
-        "digest": plan.digest,
-        "device": dataclasses.asdict(plan.device),
-        "devices": plan.devices,
-        "caps": plan.caps,
-        "explained": plan.explained,
-        "max_agents": plan.max_agents,
-        "pieces": [{**dataclasses.asdict(p), "agents": p.agents} for p in plan.pieces],
-    }
-    atomic_write_json(out / "plan.json", record)
-
-
-def load_plan(out: Path, study: Study) -> Plan | None:
-    """The plan kept in ``out`` (None if there is none); a plan of another study is an
-    error, since its pieces would not be this study's."""
-    path = out / "plan.json"
-    if not path.is_file():
-        return None
-    record = json.loads(path.read_text())
-    if record["digest"] != study.digest:
-        raise StudyError(
-            f"{out} holds a sweep of another study or of another version of {study.path} "
-            f"({path} was made from {record['study']}); choose another --out"
-        )
-    fields = {f.name for f in dataclasses.fields(Piece)}
-    pieces = tuple(
-        Piece(**{k: tuple(v) if isinstance(v, list) else v for k, v in p.items() if k in fields})
-        for p in record["pieces"]
-    )
-    return Plan(
-        record["digest"],
-        Device(**record["device"]),
-        record["devices"],
-        tuple(record["caps"]),
-        pieces,
-        tuple(record["explained"]),
-        record.get("max_agents"),
-    )
 
 
 # -- one piece ------------------------------------------------------------------------------
@@ -241,8 +192,8 @@ def run_jobs(
     free worker takes the first piece predicted to end in time (``first_fitting``; the ratio
     starts at the workers per device, a shared GPU's slowdown, and becomes the median of
     what finished pieces took against their estimates); pieces that fit nowhere are "left"
-    for the next call. Failures: module docstring ("stranded": no device was left for it).
-    Ctrl-C stops the workers (each checkpoints)."""
+    for the next call; "stranded" where no device was left (``_Failures``). Ctrl-C stops
+    the workers (each checkpoints)."""
     console = console or Console(stderr=True)
     processes = {job.plan.device.processes for job in jobs}
     if len(processes) > 1:
@@ -252,23 +203,12 @@ def run_jobs(
             + " differ in --per-device: run them in separate calls"
         )
     (processes,) = processes
-    total, result, queue = {}, {}, []
-    for j, job in enumerate(jobs):
-        (job.out / "logs").mkdir(parents=True, exist_ok=True)
-        study = job.study
-        episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
-        done = finished_pieces(job.out, job.plan)
-        total |= {(j, p.index): p.agents * episodes[p.group] for p in job.plan.pieces}
-        result |= {(j, i): "finished" for i in done}
-        todo = [p for p in job.plan.pieces if p.index not in done]
-        queue += [(j, p) for p in sorted(todo, key=lambda p: -(p.seconds or p.agents))]
+    total, result, queue = _queue(jobs)
     free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
     running: list[_Worker] = []
     deadline = None if time_limit is None else time.monotonic() + time_limit
     ratios: list[float] = []
-    tries: dict[tuple[int, int], list] = {}  # (job, piece) -> the devices it failed on
-    in_a_row: dict = {}  # device index -> pieces failed on it since its last success
-    retired: set = set()
+    failures = _Failures(console)
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -288,7 +228,7 @@ def run_jobs(
                     if i is None:
                         break
                     (j, piece) = queue.pop(i)
-                    device = _elsewhere(free, tries.get((j, piece.index), []))
+                    device = failures.elsewhere(free, (j, piece.index))
                     free.remove(device)
                     running.append(_start(jobs, j, piece, device, bar, total))
                 if not running:
@@ -303,34 +243,17 @@ def run_jobs(
                     w.log.close()
                     running.remove(w)
                     bar.remove_task(w.task)
-                    key, where = (w.job, w.piece.index), w.device.index
                     if w.process.returncode == 0:
-                        result[key], in_a_row[where] = "finished", 0
+                        result[w.job, w.piece.index] = "finished"
+                        failures.succeeded(w.device)
                         if w.piece.seconds:
                             ratios.append((time.monotonic() - w.started) / w.piece.seconds)
+                    elif failures.failed(w, out):
+                        queue.append((w.job, w.piece))  # once more, after the others
                     else:
-                        tries.setdefault(key, []).append(where)
-                        in_a_row[where] = in_a_row.get(where, 0) + 1
-                        again = len(tries[key]) == 1
-                        if again:
-                            queue.append((w.job, w.piece))
-                        else:
-                            result[key] = FAILED
-                        console.print(
-                            f"[red]piece {w.piece.index} ({w.piece.name}) of {out} failed on "
-                            f"{_device_name(w.device)} (exit {w.process.returncode}; "
-                            f"{out / 'logs' / w.piece.name}.log)"
-                            + ("; it will be started once more" if again else "")
-                            + "[/]"
-                        )
-                        if in_a_row[where] >= RETIRE_AFTER and where not in retired:
-                            retired.add(where)
-                            free = [d for d in free if d.index != where]
-                            console.print(
-                                f"[red]{_device_name(w.device)}: {in_a_row[where]} pieces in a "
-                                "row failed on it; it takes no more pieces in this call[/]"
-                            )
-                    if where not in retired:
+                        result[w.job, w.piece.index] = FAILED
+                    free = [d for d in free if d.index not in failures.retired]
+                    if w.device.index not in failures.retired:
                         free.append(w.device)
                 finished = [k for k, s in result.items() if s == "finished"]
                 live = sum(
@@ -344,14 +267,62 @@ def run_jobs(
             for w in running:
                 w.process.wait()
             raise
-    stranded = bool(queue) and len(retired) == len({d.index for d in devices})
+    stranded = bool(queue) and len(failures.retired) == len({d.index for d in devices})
     result.update({(j, p.index): STRANDED if stranded else LEFT for j, p in queue})
     return result
 
 
-def _elsewhere(free: list[Device], failed_on: list) -> Device:
-    """The first free device a piece has not failed on (else the first free one)."""
-    return next((d for d in free if d.index not in failed_on), free[0])
+def _queue(jobs: list[Job]) -> tuple[dict, dict, list]:
+    """Episodes to train per (job, piece), the pieces already finished, and the queue of
+    the others: the jobs in their order, each job's pieces longest first."""
+    total, result, queue = {}, {}, []
+    for j, job in enumerate(jobs):
+        (job.out / "logs").mkdir(parents=True, exist_ok=True)
+        study = job.study
+        episodes = {g: study.config(group)[0].episodes for g, group in enumerate(study.groups)}
+        done = finished_pieces(job.out, job.plan)
+        total |= {(j, p.index): p.agents * episodes[p.group] for p in job.plan.pieces}
+        result |= {(j, i): "finished" for i in done}
+        todo = [p for p in job.plan.pieces if p.index not in done]
+        queue += [(j, p) for p in sorted(todo, key=lambda p: -(p.seconds or p.agents))]
+    return total, result, queue
+
+
+class _Failures:
+    """The devices each piece failed on; ``retired``: devices on which ``RETIRE_AFTER``
+    pieces failed in a row (another process holds the memory, a broken GPU)."""
+
+    def __init__(self, console: Console):
+        self.console = console
+        self.tries: dict[tuple[int, int], list] = {}  # (job, piece) -> devices it failed on
+        self.in_a_row: dict = {}  # device index -> failures since its last success
+        self.retired: set = set()
+
+    def elsewhere(self, free: list[Device], key: tuple[int, int]) -> Device:
+        """The first free device the piece has not failed on (else the first free one)."""
+        return next((d for d in free if d.index not in self.tries.get(key, [])), free[0])
+
+    def succeeded(self, device: Device) -> None:
+        self.in_a_row[device.index] = 0
+
+    def failed(self, w: _Worker, out: Path) -> bool:
+        """Records a failed worker and says so; True: start its piece once more."""
+        where, key = w.device.index, (w.job, w.piece.index)
+        self.tries.setdefault(key, []).append(where)
+        self.in_a_row[where] = self.in_a_row.get(where, 0) + 1
+        again = len(self.tries[key]) == 1
+        log, more = out / "logs" / f"{w.piece.name}.log", "; it will be started once more"
+        self.console.print(
+            f"[red]piece {w.piece.index} ({w.piece.name}) of {out} failed on "
+            f"{_device_name(w.device)} (exit {w.process.returncode}; {log}){more * again}[/]"
+        )
+        if self.in_a_row[where] >= RETIRE_AFTER and where not in self.retired:
+            self.retired.add(where)
+            self.console.print(
+                f"[red]{_device_name(w.device)}: {self.in_a_row[where]} pieces in a row failed "
+                "on it; it takes no more pieces in this call[/]"
+            )
+        return again
 
 
 def _device_name(device: Device) -> str:
@@ -384,39 +355,3 @@ def _start(jobs, j, piece, device, bar, total) -> _Worker:
     task = bar.add_task(f"  {name} ({_device_name(device)})", total=total[j, piece.index])
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     return _Worker(j, piece, device, process, log, task, time.monotonic())
-
-
-# -- a cluster ------------------------------------------------------------------------------
-
-
-def slurm_script(study: Study, out: Path, plan: Plan, extra: list[str]) -> str:
-    """A Slurm job array whose task i trains piece i (resubmit it to resume)."""
-    longest = max((p.seconds or 0.0) for p in plan.pieces)
-    hours = max(1.0, 1.5 * longest / 3600)  # room for a slower device than planned
-    h, m = int(hours), int(60 * (hours - int(hours)))
-    lines = [
-        "#!/bin/bash",
-        f"#SBATCH --job-name={study.name}",
-        f"#SBATCH --array=0-{len(plan.pieces) - 1}",
-        "#SBATCH --gres=gpu:1",
-        "#SBATCH --cpus-per-task=4",
-        f"#SBATCH --time={h:02d}:{m:02d}:00",
-        f"#SBATCH --output={out.resolve()}/logs/slurm-%A_%a.log",
-        *(f"#SBATCH --{option.lstrip('-')}" for option in extra),
-        "",
-        f"# {study.name}: {len(plan.pieces)} pieces ({plan.explained[0]}).",
-        "# Task i trains piece i into the same directory; a finished piece is skipped and an",
-        "# interrupted one resumes from its checkpoint, so the same script can be resubmitted.",
-        "set -euo pipefail",
-        f"cd {shlex.quote(str(Path.cwd()))}  # where the study and --out paths start",
-        piece_command(study, out, "$SLURM_ARRAY_TASK_ID", plan).replace(
-            "'$SLURM_ARRAY_TASK_ID'", '"$SLURM_ARRAY_TASK_ID"'
-        ),
-    ]
-    return "\n".join(lines) + "\n"
-
-
-def write_slurm(path: Path, study: Study, out: Path, plan: Plan, extra: list[str]) -> None:
-    (out / "logs").mkdir(parents=True, exist_ok=True)  # Slurm does not make --output's folder
-    atomic_write_text(path, slurm_script(study, out, plan, extra))
-    os.chmod(path, 0o755)

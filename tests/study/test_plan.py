@@ -101,7 +101,8 @@ def test_pieces_spread_over_devices_down_to_the_minimum(tmp_path):
 
 
 def test_a_piece_command_keeps_the_cap_that_cut_the_pieces(tmp_path):
-    from advisor_jax.study.sweep import load_plan, piece_command, save_plan
+    from advisor_jax.study.plan_file import load_plan, save_plan
+    from advisor_jax.study.sweep import piece_command
 
     s = _study(tmp_path)
     big = planning.Device("gpu", 80 * GIB, 0)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from advisor_jax.cli.main import main
-from advisor_jax.study import sweep
+from advisor_jax.study import plan_file, sweep
 from advisor_jax.study.spec import load_study
 
 STUDY = """
@@ -98,7 +98,7 @@ def test_slurm_writes_a_job_array_of_the_pieces_and_keeps_the_plan(study_file, t
     assert [p["agents"] for p in plan["pieces"]] == [2, 4]
     assert "sbatch" in capsys.readouterr().err
     # a later call (a task, or a resumed sweep) keeps this plan, whatever the device
-    kept = sweep.load_plan(out, load_study(study_file))
+    kept = plan_file.load_plan(out, load_study(study_file))
     assert [p.name for p in kept.pieces] == [p["name"] for p in plan["pieces"]]
 
 
