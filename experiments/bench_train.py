@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.devices import pad, place, shard
+from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import population_functions
 
@@ -53,9 +53,9 @@ def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32
     placement = place(n, devices)
     _, init_fn, chunk_fn = population_functions(cfg, placement, PROGRAMS[args.program])
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
-    hp = shard(pad(hp, placement), placement)
-    keys = shard(pad(agent_keys(list(range(n))), placement), placement)
-    state, step = init_fn(keys), 0  # padding agents (if any) step along and are not counted
+    hp = put(hp, placement)
+    keys = agent_keys(list(range(n)))
+    state, step = init_population(init_fn, keys, placement, cfg.episodes), 0  # as training
 
     def chunk():
         nonlocal state, step

@@ -43,7 +43,7 @@ from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.devices import freeze_padding, pad, place, shard
+from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import population_functions
 
@@ -106,9 +106,9 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1) -> dict:
     placement = place(n_agents, devices)
     _, init_fn, chunk_fn = population_functions(cfg, placement)  # training's program
     hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
-    hp = shard(pad(hp, placement), placement)
-    keys = shard(pad(agent_keys(list(range(n_agents))), placement), placement)
-    state, step = freeze_padding(init_fn(keys), placement, cfg.episodes), 0
+    hp = put(hp, placement)
+    keys = agent_keys(list(range(n_agents)))
+    state, step = init_population(init_fn, keys, placement, cfg.episodes), 0
     compiled = chunk_fn.lower(state, hp, jnp.int32(step)).compile()  # runs, and has the HLO
 
     def chunk():

@@ -104,6 +104,17 @@ def shard(tree: Any, placement: Placement) -> Any:
     return tree if sharding is None else jax.device_put(tree, sharding)
 
 
+def put(tree: Any, placement: Placement) -> Any:
+    """A tree of the real agents, padded and placed on the mesh (``shard(pad(tree))``)."""
+    return shard(pad(tree, placement), placement)
+
+
+def init_population(init_fn: Any, keys: Any, placement: Placement, n_total: int) -> Any:
+    """A population's first state as training starts it: ``init_fn`` of the real agents'
+    keys padded and placed, the padding agents frozen (``freeze_padding``)."""
+    return freeze_padding(init_fn(put(keys, placement)), placement, n_total)
+
+
 def to_host(tree: Any) -> Any:
     """Numpy copy of a tree of (possibly sharded, possibly multi-process) arrays."""
     if jax.process_count() == 1:

@@ -67,9 +67,11 @@ from advisor_jax.training.devices import (
     Placement,
     freeze_padding,
     from_writer,
+    init_population,
     is_writer,
     pad,
     place,
+    put,
     shard,
     to_host,
     unpad,
@@ -229,7 +231,7 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
             checkpoint.save_step(out_dir / "checkpoints", step, host, run=identity)
         return host
 
-    padded_hp = shard(pad(hp, placement), placement)
+    padded_hp = put(hp, placement)
 
     summary = {
         "advisor_jax_version": __version__,
@@ -283,7 +285,7 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
                           "starting it afresh")  # fmt: skip
     done = False
     if state is None:
-        state = freeze_padding(init_fn(shard(pad(keys, placement), placement)), placement, n_total)
+        state = init_population(init_fn, keys, placement, n_total)
     else:
         done = _all_done(real(state.episodes), real(state.diverged), n_total)
         if done:
