@@ -26,62 +26,12 @@ batch) is excluded from the timing.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
-
-from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
+from advisor_jax.bench.full_step import PROGRAMS, full_step
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.devices import init_population, place, put
-from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import population_functions
-
-PROGRAMS = {"auto": None, "general": False, "steady": True}
-"""``--program``: ``population_functions``'s ``steady`` argument."""
-
-
-def bench(args: argparse.Namespace, n: int, devices: int, precision: str = "fp32") -> dict:
-    """Agent env-steps/s of ``n`` agents on ``devices`` devices with the learner at
-    ``precision``: best of ``args.repeats`` chunks after a warm-up."""
-    cfg, hp = preset(args.preset, args.agent, precision=precision)
-    # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
-    cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000, motion=args.motion)
-    placement = place(n, devices)
-    _, init_fn, chunk_fn = population_functions(cfg, placement, PROGRAMS[args.program])
-    hp, _ = build_population(hp, {}, seeds=list(range(n)))
-    hp = put(hp, placement)
-    keys = agent_keys(list(range(n)))
-    state, step = init_population(init_fn, keys, placement, cfg.episodes), 0  # as training
-
-    def chunk():
-        nonlocal state, step
-        state, _ = chunk_fn(state, hp, jnp.int32(step))
-        step += args.chunk
-        return state
-
-    def warm_up():  # compile + the first steps, before the buffer holds a batch
-        while step * cfg.envs_per_agent < cfg.agent.warmup + args.chunk:
-            chunk()
-        return state
-
-    _, warmup = measure.run_timed(warm_up)
-    best = measure.best_of(chunk, args.repeats)
-    sps = n * args.chunk * cfg.envs_per_agent / best
-    stats = jax.devices()[0].memory_stats() or {}  # None on CPUs
-    return dict(
-        agents=n,
-        devices=devices,
-        precision=precision,
-        agent_steps_per_s=sps,
-        seconds_per_chunk=best,
-        warmup_s=warmup,
-        # the process's peak so far (this row's population and every one timed before it)
-        peak_gib=stats["peak_bytes_in_use"] / 2**30 if "peak_bytes_in_use" in stats else None,
-    )
 
 
 def reference_lines(rows: list[dict], reference: dict | None, tree: Path | None) -> list[str]:
@@ -181,7 +131,19 @@ def main() -> None:
     for precision in args.precision:
         for n in args.agents:
             for d in args.devices:
-                rows.append(bench(args, n, d, precision))
+                rows.append(
+                    full_step(
+                        args.preset,
+                        args.agent,
+                        n,
+                        d,
+                        precision,
+                        args.chunk,
+                        args.repeats,
+                        args.motion,
+                        args.program,
+                    )  # fmt: skip
+                )
                 base = next(  # the first device count, same population and precision
                     r for r in rows if r["agents"] == n and r["precision"] == precision
                 )
