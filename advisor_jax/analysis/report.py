@@ -22,7 +22,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from advisor_jax import __version__, stats
+from advisor_jax import __version__
 from advisor_jax.analysis.items import (
     advisor_quality,
     collapse,
@@ -32,7 +32,7 @@ from advisor_jax.analysis.items import (
     table2,
     versus,
 )
-from advisor_jax.analysis.items.base import Item
+from advisor_jax.analysis.items.base import Item, point_summary
 from advisor_jax.analysis.runs import load_runs, pool
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.training.plots import save_png
@@ -78,23 +78,6 @@ def provenance(item: Item, command: str) -> dict:
         "reported": datetime.date.today().isoformat(),
         "advisor_jax_version": __version__,
     }
-
-
-def point_summary(point) -> dict:
-    """One row of an item's flat ``points`` list (``pandas.DataFrame(record["points"])``):
-    the point and, per arena, its mean success and 95 % t interval over seeds."""
-    row = {
-        "agent": point.agent,
-        "episodes": point.budget,
-        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in point.label.items()},
-        "seeds": len(point.seeds),
-    }
-    for arena in dict.fromkeys(a for r in point.seeds.values() for a in r.evaluation):
-        values = [v for v in point.scores(arena).values() if v is not None]
-        if values:
-            interval = stats.t_interval(values)
-            row[arena] = {"mean": interval.estimate, "ci95": [interval.low, interval.high]}
-    return row
 
 
 def _strict(x):

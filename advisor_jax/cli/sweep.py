@@ -231,18 +231,21 @@ def _closing(console: Console, args: SweepArgs, jobs: list, result: dict) -> Non
             if pieces(j, status)
         )
 
-    failed, stranded = listed(sweep.FAILED), listed(sweep.STRANDED)
-    if failed or stranded:
+    problems = [
+        f"{what}: {which}"
+        for what, which in (
+            ("pieces failed twice", listed(sweep.FAILED)),
+            (
+                f"pieces not started, every device having failed {sweep.RETIRE_AFTER} pieces "
+                "in a row",
+                listed(sweep.STRANDED),
+            ),
+        )
+        if which
+    ]
+    if problems:
         raise StudyError(
-            (f"pieces failed twice: {failed}" if failed else "")
-            + ("; " if failed and stranded else "")
-            + (
-                f"pieces not started, every device having failed {sweep.RETIRE_AFTER} "
-                f"pieces in a row: {stranded}"
-                if stranded
-                else ""
-            )
-            + "; the others are kept: run the same command again to retry them"
+            "; ".join(problems) + "; the others are kept: run the same command again to retry them"
         )
     any_left = False
     for j, job in enumerate(jobs):

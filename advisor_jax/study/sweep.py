@@ -174,7 +174,7 @@ def run_local(
     console: Console | None = None,
     time_limit: float | None = None,
 ) -> dict[int, str]:
-    """``run_jobs`` of one study: {piece: "finished" | "failed" | "left"}."""
+    """``run_jobs`` of one study: {piece: "finished" | "failed" | "left" | "stranded"}."""
     result = run_jobs([Job(study, out, plan)], devices, progress, console, time_limit)
     return {index: status for (_, index), status in result.items()}
 

@@ -125,6 +125,23 @@ def point_record(point: Point, arenas: Sequence[str] = ARENAS, key: str = "succe
     return record
 
 
+def point_summary(point: Point) -> dict:
+    """One row of an item's flat ``points`` list (``pandas.DataFrame(record["points"])``):
+    ``point_record`` without the per-seed detail, per arena it was evaluated in its mean
+    success and 95 % t interval."""
+    row = {
+        "agent": point.agent,
+        "episodes": point.budget,
+        "settings": {k: _json(v) for k, v in point.label.items()},
+        "seeds": len(point.seeds),
+    }
+    for arena in dict.fromkeys(a for r in point.seeds.values() for a in r.evaluation):
+        if values := scores(point, arena):
+            interval = stats.t_interval(values)
+            row[arena] = {"mean": interval.estimate, "ci95": [interval.low, interval.high]}
+    return row
+
+
 def _json(value):
     return list(value) if isinstance(value, tuple) else value
 
