@@ -70,9 +70,9 @@ class SweepArgs:
     A kept plan keeps its own --max-agents and --per-device."""
     time_limit: float | None = None
     """Minutes: start only the pieces predicted to end within this many minutes from now
-    (each piece's estimate × what finished pieces took against theirs), longest first;
-    the others wait for the next call (e.g. a job's wall-clock limit). Running pieces are
-    not stopped."""
+    (each piece's estimate × what finished pieces took against theirs, kept in DIR/timing.json
+    for later calls), longest first; the others wait for the next call (e.g. a job's
+    wall-clock limit). Running pieces are not stopped."""
     no_progress: bool = False
     """Hide the progress display."""
 

@@ -3,6 +3,7 @@
     DIR/plan.json          the plan (made by the first call; later calls keep its pieces)
     DIR/runs/<piece>/      a run directory per piece (``advisor-jax train``'s files)
     DIR/logs/<piece>.log   the output of the worker that trained it
+    DIR/timing.json        what each finished piece took against its estimate (--time-limit)
 
 ``run_jobs`` starts one worker process per free device (``advisor-jax sweep STUDY --out DIR
 --piece I``, pinned with ``CUDA_VISIBLE_DEVICES``; on a CPU-only machine one at a time), or
@@ -32,6 +33,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from advisor_jax.fileio import atomic_write_json
 from advisor_jax.study.plan import Device, Piece, Plan
 from advisor_jax.study.spec import Study, StudyError
 
@@ -155,6 +157,30 @@ class _Worker:
     started: float  # time.monotonic()
 
 
+def kept_ratios(out: Path, processes: int) -> list[float]:
+    """What the pieces that earlier calls finished in ``out`` with ``processes`` workers per
+    device took against their estimates (``DIR/timing.json``)."""
+    records = _timing(out)
+    return [r["ratio"] for r in records if r.get("processes") == processes and r.get("ratio")]
+
+
+def keep_ratio(out: Path, piece: Piece, device: Device, seconds: float) -> float:
+    """Adds a finished piece's wall time against its estimate to ``DIR/timing.json``."""
+    ratio = seconds / piece.seconds
+    record = {"piece": piece.name, "device": device.kind, "processes": device.processes}
+    record |= {"estimate_s": round(piece.seconds, 1), "seconds": round(seconds, 1)}
+    atomic_write_json(out / "timing.json", [*_timing(out), record | {"ratio": round(ratio, 4)}])
+    return ratio
+
+
+def _timing(out: Path) -> list[dict]:
+    try:
+        records = json.loads((out / "timing.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return []
+    return records if isinstance(records, list) else []
+
+
 def first_fitting(queue: list[Piece], seconds_left: float | None, ratio: float) -> int | None:
     """Index in ``queue`` of the first piece predicted to end within ``seconds_left``: its
     estimate × ``ratio`` (what finished pieces took against their estimates). A piece
@@ -190,10 +216,11 @@ def run_jobs(
     time, the jobs in their order and each job's pieces longest first; returns {(job,
     piece): "finished" | "failed" | "left" | "stranded"}. With ``time_limit`` (seconds) a
     free worker takes the first piece predicted to end in time (``first_fitting``; the ratio
-    starts at the workers per device, a shared GPU's slowdown, and becomes the median of
-    what finished pieces took against their estimates); pieces that fit nowhere are "left"
-    for the next call; "stranded" where no device was left (``_Failures``). Ctrl-C stops
-    the workers (each checkpoints)."""
+    is the median of what finished pieces took against their estimates, this call's and
+    those in each DIR's timing.json from earlier calls with as many workers per device, or
+    with none yet the workers per device, a shared GPU's slowdown at worst); pieces that
+    fit nowhere are "left" for the next call; "stranded" where no device was left
+    (``_Failures``). Ctrl-C stops the workers (each checkpoints)."""
     console = console or Console(stderr=True)
     processes = {job.plan.device.processes for job in jobs}
     if len(processes) > 1:
@@ -207,7 +234,7 @@ def run_jobs(
     free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
     running: list[_Worker] = []
     deadline = None if time_limit is None else time.monotonic() + time_limit
-    ratios: list[float] = []
+    ratios = [r for job in jobs for r in kept_ratios(job.out, processes)]
     failures = _Failures(console)
     columns = (
         TextColumn("{task.description}"),
@@ -247,7 +274,8 @@ def run_jobs(
                         result[w.job, w.piece.index] = "finished"
                         failures.succeeded(w.device)
                         if w.piece.seconds:
-                            ratios.append((time.monotonic() - w.started) / w.piece.seconds)
+                            seconds = time.monotonic() - w.started
+                            ratios.append(keep_ratio(out, w.piece, w.device, seconds))
                     elif failures.failed(w, out):
                         queue.append((w.job, w.piece))  # once more, after the others
                     else:

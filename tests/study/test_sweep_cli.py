@@ -272,40 +272,74 @@ def test_first_fitting_takes_the_longest_piece_that_ends_in_time():
     assert sweep.first_fitting([queue[0], queue[1]], 100.0, 2.0) is None
 
 
-def test_time_limit_starts_what_ends_in_time_and_leaves_the_rest(study_file, tmp_path, monkeypatch):
-    """One device, pieces of 100 s estimated: the first two fit a 250 s limit one after the
-    other; each took 1.2 x its estimate, so the third (predicted 120 s with 10 s left) waits."""
+def _timed_plan(study_file, processes: int):
+    """A one-GPU plan of 3 pieces of 2 agents, each estimated at 100 s."""
     from advisor_jax.study import plan as planning
 
     study = load_study(study_file)
-    gpu = planning.Device("G", 80 << 30, 0)
+    gpu = planning.Device("G", 80 << 30, 0, processes=processes)
     plan = planning.plan_study(study, gpu, devices=1, max_agents=2)
-    plan = dataclasses.replace(
-        plan, pieces=tuple(dataclasses.replace(p, seconds=100.0) for p in plan.pieces)
-    )
-    clock = [0.0]
-    started = []
+    pieces = tuple(dataclasses.replace(p, seconds=100.0) for p in plan.pieces)
+    return study, gpu, dataclasses.replace(plan, pieces=pieces)
 
-    class FakeProcess:  # a worker that takes 120 s of the fake clock
+
+def _timed_workers(monkeypatch, seconds: float) -> list[str]:
+    """Fake workers that each take ``seconds`` of a fake clock (sleep and monotonic);
+    returns the pieces started, in order."""
+    clock, started = [0.0], []
+
+    class FakeProcess:
         def __init__(self, command, env, **_):
             started.append(command[command.index("--piece") + 1])
-            self.returncode, self.end = None, clock[0] + 120.0
+            self.returncode, self.end = None, clock[0] + seconds
 
         def poll(self):
             if clock[0] >= self.end:
                 self.returncode = 0
             return self.returncode
 
-    def sleep(seconds):
-        clock[0] += seconds
+    def sleep(dt):
+        clock[0] += dt
 
     monkeypatch.setattr(sweep.subprocess, "Popen", FakeProcess)
     monkeypatch.setattr(sweep.time, "sleep", sleep)
     monkeypatch.setattr(sweep.time, "monotonic", lambda: clock[0])
+    return started
+
+
+def test_time_limit_starts_what_ends_in_time_and_leaves_the_rest(study_file, tmp_path, monkeypatch):
+    """One device, pieces of 100 s estimated: the first two fit a 250 s limit one after the
+    other; each took 1.2 x its estimate, so the third (predicted 120 s with 10 s left) waits."""
+    study, gpu, plan = _timed_plan(study_file, processes=1)
+    started = _timed_workers(monkeypatch, 120.0)
     (tmp_path / "o").mkdir()
     result = sweep.run_local(study, tmp_path / "o", plan, [gpu], progress=False, time_limit=250.0)
     assert len(plan.pieces) == 3 and len(started) == 2
     assert sorted(result.values()) == ["finished", "finished", "left"]
+
+
+@pytest.mark.parametrize("kept_processes, starts", [(2, 2), (1, 0)])
+def test_time_limit_starts_from_the_ratio_earlier_calls_measured(
+    study_file, tmp_path, monkeypatch, kept_processes, starts
+):
+    """Two workers per device: with nothing measured a piece is predicted to take 2 x its
+    100 s estimate, more than the 150 s left; timing.json from an earlier call with two
+    workers per device says 1.2 x, so the pieces start (and add their own records), while a
+    ratio measured with one worker per device is not taken for two. (Two pieces start at
+    once; the third would start with 40 s left and waits.)"""
+    study, gpu, plan = _timed_plan(study_file, processes=2)
+    _timed_workers(monkeypatch, 110.0)
+    out = tmp_path / "o"
+    out.mkdir()
+    kept = [{"piece": "x", "processes": kept_processes, "ratio": 1.2}]
+    (out / "timing.json").write_text(json.dumps(kept))
+    result = sweep.run_local(study, out, plan, [gpu], progress=False, time_limit=150.0)
+    assert len(plan.pieces) == 3
+    assert list(result.values()).count("finished") == starts
+    records = json.loads((out / "timing.json").read_text())
+    assert len(records) == 1 + starts
+    assert all(r["ratio"] == pytest.approx(1.1, abs=0.02) for r in records[1:])
+    assert sweep.kept_ratios(out, kept_processes)[0] == 1.2
 
 
 def test_time_limit_is_checked_before_anything_runs(study_file, tmp_path, capsys):
