@@ -22,6 +22,8 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from advisor_jax import __version__
 from advisor_jax.analysis.items import (
     advisor_quality,
@@ -80,14 +82,21 @@ def provenance(item: Item, command: str) -> dict:
     }
 
 
+JSON_DIGITS = 6  # significant digits of a float in an item's JSON: rates measured in float32
+
+
 def _strict(x):
-    """NaN and infinities → None, tuples → lists: strict JSON."""
+    """NaN and infinities → None, tuples → lists: strict JSON; floats rounded to
+    ``JSON_DIGITS`` significant digits (0.5349999908357859 → 0.535: what float32 run data
+    holds, at a third of the size)."""
     if isinstance(x, dict):
         return {str(k): _strict(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
+    if isinstance(x, list | tuple | np.ndarray):
         return [_strict(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float):
+        return float(f"{x:.{JSON_DIGITS}g}") if math.isfinite(x) else None
     return x
 
 

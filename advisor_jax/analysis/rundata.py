@@ -1,7 +1,9 @@
 """Kept run data: what a report needs of a run directory, small enough to commit.
 
 ``compact_run`` copies a finished run's JSON files (run.json, eval.json, eval_episode<N>.json,
-eval_seed<S>.json, command.json) without indentation and its metrics.npz, compressed, with
+eval_seed<S>.json, command.json) without indentation, the measured rates in them (the
+evaluations, computed in float32) in float32's shortest digits (0.8100000619888306 → 0.81,
+the same float32), and its metrics.npz, compressed, with
 float64 series stored as float32, the per-episode reward per step as float16 (within
 2.5e-4; reports print fewer digits), the episode outcome and length as small integers and
 the episode return left out (reward per step × length; ``with_derived`` restores it);
@@ -21,6 +23,7 @@ from advisor_jax.fileio import atomic_write_bytes, atomic_write_text
 
 KEPT_JSON = ("run.json", "eval.json", "eval_episode*.json", "eval_seed*.json")
 DROPPED_KEYS = ("machine",)  # command.json: where a run ran, beyond its device
+MEASURED_KEYS = ("evaluation", "evaluation_at_episode", "advisor_evaluation")  # of run.json
 
 
 DERIVED = ("episode_return",)  # reward_per_step × length: ``with_derived`` rebuilds it
@@ -53,6 +56,31 @@ def write_compact_json(path: Path, obj) -> None:
     atomic_write_text(path, json.dumps(obj, separators=(",", ":")) + "\n")
 
 
+def compact_json(name: str, record):
+    """A kept JSON file's ``record`` with its float32 measurements in float32's shortest
+    digits: every float of an eval*.json, and run.json's ``MEASURED_KEYS`` (not its
+    settings, which are the user's float64 values)."""
+    if name.startswith("eval"):
+        return float32_digits(record)
+    if name == "run.json" and isinstance(record, dict):
+        return {k: float32_digits(v) if k in MEASURED_KEYS else v for k, v in record.items()}
+    return record
+
+
+def float32_digits(value):
+    """Floats (in any nesting of dicts and lists) as the shortest decimal of their float32:
+    what kept copies store and what ``runs.load_runs`` reads an evaluation as, so that a
+    kept copy (0.81) and the run itself (0.8100000619888306) give one answer, pooled,
+    paired or compared seed by seed (a tie is a tie)."""
+    if isinstance(value, dict):
+        return {k: float32_digits(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [float32_digits(v) for v in value]
+    if isinstance(value, float) and np.isfinite(value) and abs(value) < 3e38:
+        return float(str(np.float32(value)))
+    return value
+
+
 def compact_run(src: Path, dest: Path) -> None:
     """The compact copy of run directory ``src`` in ``dest`` (module docstring)."""
     src, dest = Path(src), Path(dest)
@@ -61,7 +89,8 @@ def compact_run(src: Path, dest: Path) -> None:
     dest.mkdir(parents=True, exist_ok=True)
     for pattern in KEPT_JSON:
         for path in src.glob(pattern):
-            write_compact_json(dest / path.name, json.loads(path.read_text()))
+            record = compact_json(path.name, json.loads(path.read_text()))
+            write_compact_json(dest / path.name, record)
     if (src / "command.json").is_file():
         record = json.loads((src / "command.json").read_text())
         write_compact_json(

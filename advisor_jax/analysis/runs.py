@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from advisor_jax.analysis.point_settings import preset_differences, settings_of
-from advisor_jax.analysis.rundata import with_derived
+from advisor_jax.analysis.rundata import float32_digits, with_derived
 
 EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
 
@@ -93,7 +93,7 @@ def _evaluations(path: Path, summary: dict) -> dict[int, dict]:
     out = {own_eval_seed(summary): summary.get("evaluation") or {}}
     for extra in path.glob("eval_seed*.json"):
         out.setdefault(int(extra.stem.removeprefix("eval_seed")), json.loads(extra.read_text()))
-    return out
+    return {seed: float32_digits(evaluation) for seed, evaluation in out.items()}
 
 
 def _command(path: Path, summary: dict) -> str | None:
@@ -186,7 +186,8 @@ def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:
                 )
             own = chosen == own_eval_seed(summary)
             snapshots = {
-                int(n): ev for n, ev in (summary.get("evaluation_at_episode") or {}).items()
+                int(n): float32_digits(ev)
+                for n, ev in (summary.get("evaluation_at_episode") or {}).items()
             }
             runs.append(
                 Run(
@@ -196,7 +197,7 @@ def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:
                     evaluations[chosen],
                     snapshots if own else {},
                     _command(path, summary),
-                    (summary.get("advisor_evaluation") or {}) if own else {},
+                    float32_digits(summary.get("advisor_evaluation") or {}) if own else {},
                 )
             )
             if not own and summary.get("evaluation_at_episode"):

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
+import numpy as np
 import pytest
 
 from advisor_jax.analysis.items.sweeps import reaches_zero
@@ -240,3 +242,21 @@ def test_every_item_json_lists_its_points_flat(runs, tmp_path):
     assert row["training"]["mean"] == pytest.approx(0.6)
     assert row["training"]["ci95"] == pytest.approx([0.6 - half, 0.6 + half])
     assert row["validation"]["mean"] == pytest.approx(0.5)
+
+
+def test_item_json_floats_keep_six_significant_digits(runs, tmp_path):
+    """Floats in an item's JSON are rounded to six significant digits (float32 run data
+    holds no more), numpy scalars and arrays included, and NaN is written as null."""
+    from advisor_jax.analysis.report import _strict
+
+    assert _strict(0.5349999908357859) == 0.535
+    assert _strict({"a": (np.float32(0.1), np.array([1 / 3, 2e-9]))}) == {
+        "a": [0.1, [0.333333, 2e-9]]
+    }
+    assert _strict([math.nan, math.inf, 7, True]) == [None, None, 7, True]
+    out = tmp_path / "report"
+    make_report([runs], out, items=["fig6"], say=lambda m: 0)
+    numbers = re.findall(r"-?\d+\.\d+(?:e-?\d+)?", (out / "fig6.json").read_text())
+    assert numbers and all(
+        len(n.lstrip("-0.").replace(".", "").split("e")[0]) <= 6 for n in numbers
+    )

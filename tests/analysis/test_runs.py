@@ -153,3 +153,34 @@ def test_compact_run_keeps_what_the_loader_reads(tmp_path):
     np.testing.assert_allclose(
         point.seeds[0].run.metrics()["episode_return"], original["episode_return"], rtol=1e-3
     )
+
+
+def test_compact_run_writes_measured_rates_in_float32_digits_and_settings_as_they_are(tmp_path):
+    """Evaluations (float32 rates) keep float32's shortest digits, the same float32 values;
+    a run's settings are the user's float64 values and stay exact."""
+    success = [float(np.float32(0.81)), float(np.float32(0.346))]  # 0.8100000619888306, ...
+    run = write_run(tmp_path, "in", "DDPG", [0, 1], success)
+    record = json.loads((run / "run.json").read_text())
+    record["agents"][0]["beta"] = 1 / 3
+    (run / "run.json").write_text(json.dumps(record))
+    (run / "eval.json").write_text(json.dumps({"training": {"success": success}}))
+    compact_run(run, tmp_path / "out" / "a")
+    kept = json.loads((tmp_path / "out" / "a" / "run.json").read_text())
+    assert kept["agents"][0]["beta"] == 1 / 3
+    assert kept["evaluation"]["training"]["success"] == [0.81, 0.346]
+    assert json.loads((tmp_path / "out" / "a" / "eval.json").read_text()) == {
+        "training": {"success": [0.81, 0.346]}
+    }
+    assert np.float32(0.81) == np.float32(success[0]) and 0.81 != success[0]
+
+
+def test_a_kept_copy_reads_as_the_run_itself(tmp_path):
+    """The loader reads evaluations as float32's shortest digits, so a compact copy and the
+    run it came from give the same scores to the last bit (no spurious win between 0.86
+    and 0.8600000143051147 in a seed-by-seed comparison)."""
+    success = [float(np.float32(0.86)), float(np.float32(0.7))]
+    run = write_run(tmp_path / "raw", "a", "DDPG", [0, 1], success)
+    compact_run(run, tmp_path / "kept" / "a")
+    (raw,), _ = pool(load_runs([tmp_path / "raw"]))
+    (kept,), _ = pool(load_runs([tmp_path / "kept"]))
+    assert raw.scores("training") == kept.scores("training") == {0: 0.86, 1: 0.7}
