@@ -1,4 +1,4 @@
-"""The car runner's benchmark subject (``bench_runner.py``, ``probe_cpu_caches.py``): the
+"""The car runner's benchmark subject (``bench_runner.py``): the
 paper-size actor, exported in a child process so that JAX never enters the timed one,
 synthetic lidar scans and tracked poses."""
 

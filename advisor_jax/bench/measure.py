@@ -2,7 +2,7 @@
 for every benchmark in experiments/, so that every report is comparable with every other.
 
 JAX is imported lazily and only where a function needs a device: the car runner's
-benchmarks (``bench_runner.py``, ``probe_cpu_caches.py``) time a process that must never load it.
+benchmark (``bench_runner.py``) times a process that must never load it.
 """
 
 from __future__ import annotations
