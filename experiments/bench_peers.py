@@ -4,11 +4,13 @@ rejax's TD3 (``rejax.TD3``, gymnax Pendulum-v1) is given our preset's network si
 600-300, critic 1000-500-600 at ``paper``; ReLU), batch, replay size and policy delay, one
 environment per seed and one update per environment step, and is vmapped over ``--agents``
 seeds like our population. Its speed is the slope of two whole training calls of E and 2E
-steps (E = ``--steps``): the difference leaves out its compile, its uniform buffer fill
-and its fixed costs. Ours is ``advisor_jax.bench.full_step`` (best chunk past the warm-up):
-our step also runs the arena with its 16 range sensors, the advisor and Eq. 1's selector,
-which Pendulum does not have. rejax computes in fp32; ``--precision`` picks ours (issue 36
-compares at the same precision: fp32).
+steps per seed (E = ``--steps``; by default 20,000 / seeds, at least 2,000): the difference
+leaves out its compile, its uniform buffer fill and its fixed costs. Ours is
+``advisor_jax.bench.full_step`` (best chunk past the warm-up): our step also runs the arena
+with its 16 range sensors, the advisor and Eq. 1's selector, which Pendulum does not have.
+rejax computes in fp32; ``--precision`` picks ours (issue 36 compares at the same
+precision: fp32). The files are written after each population, so a run cut short keeps
+the rows it measured.
 
     pip install -e ".[peers]"      # rejax 0.1.3 with gymnax 0.0.9 (gymnax 1.0's step differs)
     python experiments/bench_peers.py --agents 1 64                       # GPU, paper sizes
@@ -71,19 +73,23 @@ def rejax_td3(preset_name: str, agent: str, steps: int):
     return td3.replace(actor=actor, critic=critic)
 
 
-def _timed_call(algo, keys) -> float:
+def _best_call(algo, keys, repeats: int) -> float:
+    """Seconds of the fastest of ``repeats`` calls of one compiled, vmapped training."""
     train = jax.jit(jax.vmap(algo.train)).lower(keys).compile()
-    start = time.perf_counter()
-    jax.block_until_ready(train(keys))
-    return time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(train(keys))
+        times.append(time.perf_counter() - start)
+    return min(times)
 
 
 def rejax_rate(preset_name: str, agent: str, n: int, steps: int, repeats: int) -> dict:
     """Agent env-steps/s of rejax's TD3 vmapped over ``n`` seeds: ``steps`` more steps per
-    seed over the extra time they take (best of ``repeats`` per length)."""
+    seed over the extra time they take (best of ``repeats`` per length, one compile each)."""
     keys = jax.random.split(jax.random.PRNGKey(0), n)
-    short = min(_timed_call(rejax_td3(preset_name, agent, steps), keys) for _ in range(repeats))
-    long = min(_timed_call(rejax_td3(preset_name, agent, 2 * steps), keys) for _ in range(repeats))
+    short = _best_call(rejax_td3(preset_name, agent, steps), keys, repeats)
+    long = _best_call(rejax_td3(preset_name, agent, 2 * steps), keys, repeats)
     if long <= short:
         raise SystemExit(
             f"rejax: {2 * steps} steps took no longer than {steps} ({long:.3f} s against "
@@ -98,7 +104,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--agent", default="ATD3+AfDP", help="our agent type (a TD3 learner)")
     parser.add_argument("--agents", type=int, nargs="+", default=[1, 64])
     parser.add_argument(
-        "--steps", type=int, default=20_000, help="rejax: E of the E and 2E step runs"
+        "--steps",
+        type=int,
+        default=0,
+        help="rejax: E of the E and 2E step runs per seed (default 20,000 / agents, at least "
+        "2,000: a 64-seed population's calls take about 20 and 40 s on an H100)",
     )
     parser.add_argument("--chunk", type=int, default=500, help="ours: env steps per call")
     parser.add_argument("--repeats", type=int, default=3)
@@ -112,10 +122,14 @@ def main(argv=None) -> dict:
         raise SystemExit(f'{missing.name} is not installed: pip install -e ".[peers]"') from None
     where = measure.provenance()
     print(f"device: {where['device']} ({where['backend']}), jax {where['jax']}, {versions}")
+    command = writing.command_line(
+        "experiments/bench_peers.py", sys.argv[1:] if argv is None else argv
+    )
     rows = []
     for n in args.agents:
+        steps = args.steps or max(2_000, 20_000 // n)
         ours = full_step(args.preset, args.agent, n, 1, args.precision, args.chunk, args.repeats)
-        peer = rejax_rate(args.preset, args.agent, n, args.steps, args.repeats)
+        peer = rejax_rate(args.preset, args.agent, n, steps, args.repeats)
         rows.append(
             dict(
                 agents=n,
@@ -123,6 +137,7 @@ def main(argv=None) -> dict:
                 rejax=peer["agent_steps_per_s"],
                 ratio=ours["agent_steps_per_s"] / peer["agent_steps_per_s"],
                 ours_precision=args.precision,
+                rejax_steps=steps,
                 rejax_seconds=(peer["short_s"], peer["long_s"]),
             )
         )
@@ -130,17 +145,20 @@ def main(argv=None) -> dict:
             f"agents {n:4d}: ours {rows[-1]['ours']:10,.0f}, rejax {rows[-1]['rejax']:10,.0f} "
             f"agent env-steps/s, ours / rejax {rows[-1]['ratio']:.2f}"
         )
+        result = write(args, where, versions, rows, command)  # after each row: nothing lost
+    return result
+
+
+def write(args, where: dict, versions: dict, rows: list[dict], command: str) -> dict:
+    """``--out/--name``.json and .md of the rows measured so far."""
     result = dict(
         **where,
         preset=args.preset,
         agent=args.agent,
-        steps=args.steps,
         chunk=args.chunk,
         peers=versions,
         rows=rows,
-        command=writing.command_line(
-            "experiments/bench_peers.py", sys.argv[1:] if argv is None else argv
-        ),
+        command=command,
     )
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out / f"{args.name}.json", result)
@@ -155,15 +173,15 @@ def main(argv=None) -> dict:
         "experiments/bench_peers.py for how each is timed).",
         "",
         *writing.markdown_table(
-            ("agents", "ours", "rejax TD3", "ours / rejax"),
-            [(r["agents"], r["ours"], r["rejax"], r["ratio"]) for r in rows],
-            formats=("", ",.0f", ",.0f", ".2f"),
+            ("agents", "ours", "rejax TD3", "ours / rejax", "rejax E (steps per seed)"),
+            [(r["agents"], r["ours"], r["rejax"], r["ratio"], r["rejax_steps"]) for r in rows],
+            formats=("", ",.0f", ",.0f", ".2f", ","),
             align="r",
         ),
         "",
         f"Command: `{result['command']}`",
     ]
-    writing.write_markdown(args.out / f"{args.name}.md", lines, echo=True)
+    writing.write_markdown(args.out / f"{args.name}.md", lines, echo=len(rows) == len(args.agents))
     return result
 
 

@@ -7,7 +7,7 @@ A **run** is a directory that ``advisor-jax train`` (or ``advisor-jax sweep``) w
 run.json, eval.json (its agents on the episodes of its evaluation seed), eval_advisor.json
 (each agent's advisor alone on the same episodes, ``--eval-advisor``),
 eval_episode<N>.json (its actors kept at episode N, ``--snapshot-episodes``),
-eval_seed<S>.json (re-evaluated on seed S's episodes, ``experiments/reevaluate.py``) and
+eval_seed<S>.json (re-evaluated on seed S's episodes, ``advisor-jax reevaluate``) and
 metrics.npz (per agent × episode; ``compact`` keeps it small). Unfinished runs are left out
 with a note.
 
@@ -181,8 +181,8 @@ def load_runs(dirs: Sequence[Path], eval_seed: int | None = None) -> RunSet:
         for path, summary, evaluations in members:
             if chosen not in evaluations:
                 raise ValueError(
-                    f"{path} was not evaluated on eval seed {chosen}: run python "
-                    f"experiments/reevaluate.py {path} --eval-seed {chosen}, or leave it out"
+                    f"{path} was not evaluated on eval seed {chosen}: run "
+                    f"advisor-jax reevaluate {path} --eval-seed {chosen}, or leave it out"
                 )
             own = chosen == own_eval_seed(summary)
             snapshots = {
@@ -232,7 +232,7 @@ def _shared_seed(members, arena: str) -> int:
         raise ValueError(
             f"runs trained in {arena!r} were evaluated on different episodes (eval seeds: "
             f"{names}) and no seed is common to all; report them apart or re-evaluate them "
-            "(experiments/reevaluate.py)"
+            "(advisor-jax reevaluate)"
         )
     return min(shared)
 

@@ -5,6 +5,7 @@
     advisor-jax evaluate --policy advisor --arena validation --episodes 500 [--json]
     advisor-jax train [--preset quick|paper|physical] [--agent ATD3+AfDP] [--seeds N] [--grid ...]
     advisor-jax evaluate --policy runs/NAME:0 --arena validation   # agent 0 of a run
+    advisor-jax reevaluate runs/A runs/B --eval-seed 8 --episodes 50   # other episodes
     advisor-jax export runs/NAME --agent 0 --out policy/ [--onnx]
     advisor-jax sweep experiments/studies/quick.toml --out runs/quick [--dry-run]
     advisor-jax report runs/quick --out reports/quick
@@ -39,7 +40,7 @@ from advisor_jax.cli.helptext import flowing
 from advisor_jax.cli.report import ReportArgs, report_command
 from advisor_jax.cli.sweep import SweepArgs, sweep_command
 from advisor_jax.cli.train import TrainArgs, train_command
-from advisor_jax.fileio import atomic_create_bytes
+from advisor_jax.fileio import atomic_create_bytes, atomic_write_json
 from advisor_jax.runner.errors import RunnerError
 
 
@@ -222,6 +223,50 @@ def _print_table(result: dict) -> None:
     Console().print(table)
 
 
+@flowing
+def reevaluate(
+    runs: Annotated[
+        tuple[Path, ...],
+        tyro.conf.Positional,
+        tyro.conf.arg(metavar="RUN [RUN ...]", help_behavior_hint="(required)"),
+    ],
+    eval_seed: int,
+    episodes: int = 100,
+    arenas: tuple[str, ...] = (),
+    out: Path | None = None,
+) -> None:
+    """Score every agent of finished runs again, on the episodes of another evaluation seed.
+
+    Runs trained with different --eval-seed cannot be pooled or paired by advisor-jax
+    report; this writes eval_seed<S>.json (eval.json's format) into each run directory,
+    and report then scores the run on those episodes.
+
+    Args:
+      runs: Finished run directories (their saved actors are evaluated).
+      eval_seed: The seed whose episodes to use: those train --eval-seed S scores on.
+      episodes: Episodes per arena (the other runs' count, to pool with them).
+      arenas: Arenas (default: those of each run's own evaluation).
+      out: Write OUT/<run name>/eval_seed<S>.json instead of into each run.
+    """
+    from advisor_jax.training.run_directory import reevaluate as score_again
+
+    if not runs:
+        raise ValueError("reevaluate: name at least one finished run directory (RUN ...)")
+    console = Console(stderr=True, highlight=False)
+    for run in runs:
+        result = score_again(run, eval_seed, episodes, tuple(arenas))
+        where = (out / run.name) if out else run
+        written = atomic_write_json(where / f"eval_seed{eval_seed}.json", result)
+        means = {
+            arena: 100 * sum(v for v in r["success"] if v is not None) / len(r["success"])
+            for arena, r in result.items()
+        }
+        success = ", ".join(f"{a} {m:.1f}" for a, m in means.items())
+        console.print(
+            Text(f"{written}: eval seed {eval_seed}, mean success % {success}"), soft_wrap=True
+        )
+
+
 def train(args: Annotated[TrainArgs, tyro.conf.arg(name="")]) -> None:
     """Train a population of advisor-based agents (seeds × hyperparameter grid, one compile).
 
@@ -260,6 +305,7 @@ SUBCOMMANDS: dict[str, Callable[..., Any]] = {
     "sweep": sweep,
     "report": report,
     "evaluate": evaluate,
+    "reevaluate": reevaluate,
     "export": export,
     "arena": arena,
 }

@@ -99,9 +99,7 @@ def test_a_re_evaluation_both_runs_have_is_taken(tmp_path):
     assert {r.path.name: r.eval_seed for r in runset.runs} == {"a": 0, "b": 0}
     (point,) = [p for p in pool(runset)[0] if not p.snapshot]
     assert point.scores("training") == {0: 0.8, 1: 0.4}
-    missing = (
-        r"not evaluated on eval seed 8: run python experiments/reevaluate.py .*a --eval-seed 8"
-    )
+    missing = r"not evaluated on eval seed 8: run advisor-jax reevaluate .*a --eval-seed 8"
     with pytest.raises(ValueError, match=missing):
         load_runs([tmp_path], eval_seed=8)
 

@@ -138,7 +138,35 @@ def test_hp_without_a_value_answers_with_the_hp_syntax(capsys):
     assert code == 2 and "--grid expects NAME=V1,V2,..." in err
 
 
-@pytest.mark.parametrize("command", ["sweep", "report", "evaluate", "export"])
+@pytest.mark.parametrize("command", ["sweep", "report", "evaluate", "export", "reevaluate"])
 def test_no_help_shows_an_empty_default(command, capsys):
     code, out, _ = _run([command, "--help"], capsys)
     assert code == 0 and "(default: )" not in out and "{None}" not in out
+
+
+def test_reevaluate_writes_eval_seed_files_where_asked(tmp_path, capsys, monkeypatch):
+    """``advisor-jax reevaluate RUN... --eval-seed S`` writes eval_seed<S>.json into each run
+    (or OUT/<run name>) from training.run_directory.reevaluate (tested on a real run in
+    tests/training/test_run.py), and says where, with the mean success."""
+    from advisor_jax.training import run_directory
+
+    calls = []
+
+    def score_again(run, eval_seed, episodes, arenas):
+        calls.append((run.name, eval_seed, episodes, arenas))
+        return {"training": {"success": [0.5, 1.0], "episodes": episodes}}
+
+    monkeypatch.setattr(run_directory, "reevaluate", score_again)
+    runs = [tmp_path / "a", tmp_path / "b"]
+    argv = ["reevaluate", *map(str, runs), "--eval-seed", "8", "--episodes", "20"]
+    code, _, err = _run(argv, capsys)
+    assert code == 0 and calls == [("a", 8, 20, ()), ("b", 8, 20, ())]
+    written = json.loads((tmp_path / "b" / "eval_seed8.json").read_text())
+    assert written["training"]["success"] == [0.5, 1.0]
+    assert "eval_seed8.json: eval seed 8, mean success % training 75.0" in " ".join(err.split())
+    code, _, _ = _run(["reevaluate", str(runs[0]), "--eval-seed", "3", "--arenas",
+                       "validation", "--out", str(tmp_path / "o")], capsys)  # fmt: skip
+    assert code == 0 and calls[-1] == ("a", 3, 100, ("validation",))
+    assert (tmp_path / "o" / "a" / "eval_seed3.json").is_file()
+    code, _, err = _run(["reevaluate", "--eval-seed", "3"], capsys)
+    assert code == 2 and "name at least one finished run directory" in err

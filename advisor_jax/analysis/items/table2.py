@@ -70,7 +70,7 @@ def pooled_collision_speed(point: Point) -> dict:
             if ev["collision_speed_sd"] is None:
                 raise ValueError(
                     f"{s.run.path}: collision_speed_sd missing; re-evaluate it "
-                    "(experiments/reevaluate.py)"
+                    "(advisor-jax reevaluate)"
                 )
             counts.append(count)
             means.append(ev["collision_speed"])
