@@ -186,7 +186,9 @@ def _plot(series: dict, controls: dict):
             ax.set_xlabel(f"advisor's own success, {arena} env (%)")
             ax.set_ylabel(f"agent success after {budget} episodes, {arena} env (%)")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=6)
+    # one legend under the panels: inside them it covered the points of the lowest lines
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=7)
     fig.suptitle("Agent success against the advisor's own success (same episodes)", fontsize=10)
     return fig
 
