@@ -34,7 +34,7 @@ from advisor_jax.analysis.items import (
     table2,
     versus,
 )
-from advisor_jax.analysis.items.base import Item, point_summary
+from advisor_jax.analysis.items.base import ARENAS, Item, point_summary
 from advisor_jax.analysis.runs import load_runs, pool
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.training.plots import save_png
@@ -100,6 +100,25 @@ def _strict(x):
     return x
 
 
+def _one_arena(points) -> str:
+    """Why the simulation items may have skipped runs: they were scored in one arena only."""
+    partial = sorted(
+        {
+            p.text()
+            for p in points
+            if p.arena != "physical"
+            and not all(a in next(iter(p.seeds.values())).evaluation for a in ARENAS)
+        }
+    )
+    if not partial:
+        return ""
+    return (
+        f" ({len(partial)} point(s), e.g. {partial[0]}, were evaluated in one arena only; "
+        "Table 1 and Figs 6-11 need the training and validation arenas: train with "
+        "--eval-arenas training validation)"
+    )
+
+
 def make_report(
     dirs: Sequence[Path],
     out: Path,
@@ -121,10 +140,11 @@ def make_report(
     context = Context(runset.advisors, tuple(versus_settings))
     out.mkdir(parents=True, exist_ok=True)
     written, sections = [], []
+    one_arena = _one_arena(points)
     for name in items or ITEMS:
         item = ITEMS[name](points, context)
         if item is None:
-            notes.append(f"{name}: skipped, no points it applies to")
+            notes.append(f"{name}: skipped, no points it applies to{one_arena}")
             continue
         record = {
             "item": item.name,

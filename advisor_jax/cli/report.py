@@ -82,4 +82,5 @@ def report_command(args: ReportArgs) -> None:
             root = next(d for d in args.dirs if run.path.is_relative_to(d))
             compact_run(run.path, args.keep_runs / root.name / run.path.relative_to(root))
         console.print(f"compact run data in {args.keep_runs}")
-    console.print(f"wrote {len(written)} files into {args.out} (report.md lists them)")
+    noun = "file" if len(written) == 1 else "files"
+    console.print(f"wrote {len(written)} {noun} into {args.out} (report.md lists them)")

@@ -260,3 +260,14 @@ def test_item_json_floats_keep_six_significant_digits(runs, tmp_path):
     assert numbers and all(
         len(n.lstrip("-0.").replace(".", "").split("e")[0]) <= 6 for n in numbers
     )
+
+
+def test_a_skipped_item_says_when_the_runs_were_scored_in_one_arena(tmp_path):
+    """Runs evaluated in the training arena only: Table 1 is skipped, and the note says why
+    and what to train with."""
+    write_run(tmp_path / "runs", "a", "DDPG", [0, 1, 2], [0.8, 0.6, 0.7], arenas=("training",))
+    said = []
+    make_report([tmp_path / "runs"], tmp_path / "r", items=["table1"], say=said.append)
+    (note,) = [line for line in said if "table1: skipped" in line]
+    assert "1 point(s), e.g. DDPG, were evaluated in one arena only" in note
+    assert "--eval-arenas training validation" in note
