@@ -157,11 +157,14 @@ class _Worker:
     started: float  # time.monotonic()
 
 
-def kept_ratios(out: Path, processes: int) -> list[float]:
+def kept_ratios(out: Path, processes: int, kind: str | None = None) -> list[float]:
     """What the pieces that earlier calls finished in ``out`` with ``processes`` workers per
-    device took against their estimates (``DIR/timing.json``)."""
-    records = _timing(out)
-    return [r["ratio"] for r in records if r.get("processes") == processes and r.get("ratio")]
+    device took against their estimates (``DIR/timing.json``); only those on a ``kind``
+    device where there are any (two H200 pieces sharing a GPU took 1.24x, two H100 ones
+    1.51x: docs/sweeps.md)."""
+    records = [r for r in _timing(out) if r.get("processes") == processes and r.get("ratio")]
+    same_kind = [r for r in records if r.get("device") == kind]
+    return [r["ratio"] for r in same_kind or records]
 
 
 def keep_ratio(out: Path, piece: Piece, device: Device, seconds: float) -> float:
@@ -234,7 +237,8 @@ def run_jobs(
     free = [dataclasses.replace(d, processes=processes) for _ in range(processes) for d in devices]
     running: list[_Worker] = []
     deadline = None if time_limit is None else time.monotonic() + time_limit
-    ratios = [r for job in jobs for r in kept_ratios(job.out, processes)]
+    kind = devices[0].kind if devices else None
+    ratios = [r for job in jobs for r in kept_ratios(job.out, processes, kind)]
     failures = _Failures(console)
     columns = (
         TextColumn("{task.description}"),

@@ -342,6 +342,20 @@ def test_time_limit_starts_from_the_ratio_earlier_calls_measured(
     assert sweep.kept_ratios(out, kept_processes)[0] == 1.2
 
 
+def test_kept_ratios_prefer_the_same_kind_of_device(tmp_path):
+    records = [
+        {"device": "H200", "processes": 2, "ratio": 1.24},
+        {"device": "H100", "processes": 2, "ratio": 1.51},
+        {"device": "H100", "processes": 1, "ratio": 1.0},
+    ]
+    (tmp_path / "timing.json").write_text(json.dumps(records))
+    assert sweep.kept_ratios(tmp_path, 2, "H100") == [1.51]
+    assert sweep.kept_ratios(tmp_path, 2, "A100") == [1.24, 1.51]  # none of its kind: all
+    assert sweep.kept_ratios(tmp_path, 1) == [1.0]
+    (tmp_path / "timing.json").write_text("{not json")
+    assert sweep.kept_ratios(tmp_path, 2, "H100") == []
+
+
 def test_time_limit_is_checked_before_anything_runs(study_file, tmp_path, capsys):
     out = tmp_path / "o"
     local = "--time-limit is for local runs"
