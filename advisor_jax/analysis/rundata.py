@@ -1,7 +1,8 @@
 """Kept run data: what a report needs of a run directory, small enough to commit.
 
-``compact_run`` copies a finished run's JSON files (run.json, eval.json, eval_episode<N>.json,
-eval_seed<S>.json, command.json) without indentation, the measured rates in them (the
+``compact_run`` copies a finished run's JSON files (run.json, eval_seed<S>.json, command.json;
+not eval.json or eval_episode<N>.json, whose evaluations run.json holds, except for a run
+that stopped after writing eval.json) without indentation, the measured rates in them (the
 evaluations, computed in float32) in float32's shortest digits (0.8100000619888306 → 0.81,
 the same float32), and its metrics.npz, compressed, with
 float64 series stored as float32, the per-episode reward per step as float16 (within
@@ -22,6 +23,7 @@ import numpy as np
 from advisor_jax.fileio import atomic_write_bytes, atomic_write_text
 
 KEPT_JSON = ("run.json", "eval.json", "eval_episode*.json", "eval_seed*.json")
+IN_RUN_JSON = ("eval.json", "eval_episode*.json")  # a finished run.json's evaluation(_at_episode)
 DROPPED_KEYS = ("machine",)  # command.json: where a run ran, beyond its device
 MEASURED_KEYS = ("evaluation", "evaluation_at_episode", "advisor_evaluation")  # of run.json
 
@@ -87,7 +89,10 @@ def compact_run(src: Path, dest: Path) -> None:
     if src.resolve() == dest.resolve():
         raise ValueError(f"compact_run copies: {dest} must not be the run itself")
     dest.mkdir(parents=True, exist_ok=True)
+    finished = json.loads((src / "run.json").read_text()).get("status") == "finished"
     for pattern in KEPT_JSON:
+        if finished and pattern in IN_RUN_JSON:
+            continue
         for path in src.glob(pattern):
             record = compact_json(path.name, json.loads(path.read_text()))
             write_compact_json(dest / path.name, record)

@@ -161,14 +161,16 @@ def test_compact_run_writes_measured_rates_in_float32_digits_and_settings_as_the
     record = json.loads((run / "run.json").read_text())
     record["agents"][0]["beta"] = 1 / 3
     (run / "run.json").write_text(json.dumps(record))
-    (run / "eval.json").write_text(json.dumps({"training": {"success": success}}))
+    (run / "eval_seed8.json").write_text(json.dumps({"training": {"success": success}}))
+    (run / "eval.json").write_text(json.dumps(record["evaluation"]))
     compact_run(run, tmp_path / "out" / "a")
     kept = json.loads((tmp_path / "out" / "a" / "run.json").read_text())
     assert kept["agents"][0]["beta"] == 1 / 3
     assert kept["evaluation"]["training"]["success"] == [0.81, 0.346]
-    assert json.loads((tmp_path / "out" / "a" / "eval.json").read_text()) == {
+    assert json.loads((tmp_path / "out" / "a" / "eval_seed8.json").read_text()) == {
         "training": {"success": [0.81, 0.346]}
     }
+    assert not (tmp_path / "out" / "a" / "eval.json").exists()  # run.json holds it
     assert np.float32(0.81) == np.float32(success[0]) and 0.81 != success[0]
 
 
