@@ -34,7 +34,7 @@ from advisor_jax.analysis.items import (
     table2,
     versus,
 )
-from advisor_jax.analysis.items.base import ARENAS, Item, point_summary
+from advisor_jax.analysis.items.base import Item, in_both_arenas, point_summary
 from advisor_jax.analysis.runs import load_runs, pool
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
 from advisor_jax.training.plots import save_png
@@ -102,14 +102,7 @@ def _strict(x):
 
 def _one_arena(points) -> str:
     """Why the simulation items may have skipped runs: they were scored in one arena only."""
-    partial = sorted(
-        {
-            p.text()
-            for p in points
-            if p.arena != "physical"
-            and not all(a in next(iter(p.seeds.values())).evaluation for a in ARENAS)
-        }
-    )
+    partial = sorted({p.text() for p in points if p.arena != "physical" and not in_both_arenas(p)})
     if not partial:
         return ""
     return (

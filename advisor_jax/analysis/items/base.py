@@ -76,12 +76,12 @@ def uses_advisor_data(agent: str) -> bool:
 
 def simulated(points: Iterable[Point]) -> list[Point]:
     """Points trained and evaluated in the simulation arenas (Table 1, Figs 6-11)."""
-    return [
-        p
-        for p in points
-        if p.arena != "physical"
-        and all(a in next(iter(p.seeds.values())).evaluation for a in ARENAS)
-    ]
+    return [p for p in points if p.arena != "physical" and in_both_arenas(p)]
+
+
+def in_both_arenas(point: Point) -> bool:
+    """Whether the point's runs were scored in the training and the validation arena."""
+    return all(a in next(iter(point.seeds.values())).evaluation for a in ARENAS)
 
 
 def key_without(point: Point, names: Sequence[str]) -> tuple:
