@@ -2,7 +2,7 @@
 
     python experiments/bench_brax_baselines.py [--preset quick] [--seeds 3] [--episodes 60]
         [--agents DDPG ATD3+AfDP brax-SAC brax-PPO] [--runs runs/brax_bench]
-        [--out results/brax_baselines_cpu]
+        [--out results/brax_baselines_cpu] [--brax-cpus 16-63]
 
 Runs ``advisor-jax train --agent A --preset P --seeds N --episodes E --eval-seed 0`` for each
 agent type, one after another on this machine, and times the whole command (start-up and
@@ -11,6 +11,13 @@ per call) and the training alone (run.json ``train_seconds``). Also records each
 steps per agent, completed episodes and evaluation success, so the rows are comparable and
 the run directories (``--runs``) go straight into ``advisor-jax report``. Writes
 ``OUT.md`` and ``OUT.json``.
+
+``--brax-cpus FIRST-LAST`` trains every brax seed as its own one-seed process
+(``--seed k --seeds 1``) on the CPU instead, all of them at once, each pinned to its share
+of those cores: brax's trainer cannot be vmapped over seeds, so on a many-core host this
+is how its 16 seeds run side by side (the report pools one-seed runs by their settings).
+The other agent types still train as one population on the default device, while the brax
+processes run.
 """
 
 from __future__ import annotations
@@ -38,6 +45,8 @@ def train(agent: str, args, out: Path) -> dict:
     ]  # fmt: skip
     if args.episodes:
         command += ["--episodes", str(args.episodes)]
+    if args.seed0:
+        command += ["--seed", str(args.seed0)]
     started = time.perf_counter()
     subprocess.run(command, check=True)
     wall = time.perf_counter() - started
@@ -46,6 +55,7 @@ def train(agent: str, args, out: Path) -> dict:
     return {
         "agent": agent,
         "command": " ".join(command),
+        "where": f"{measure.provenance()['device']}, one population",
         "wall_seconds": round(wall, 1),
         "train_seconds": run["train_seconds"],
         "seconds_per_agent": run.get("seconds_per_agent"),
@@ -53,6 +63,93 @@ def train(agent: str, args, out: Path) -> dict:
         "episodes_completed": run["episodes_completed"],
         "success": {a: float(np.mean(ev["success"])) for a, ev in evaluation.items()},
     }
+
+
+def cpu_range(text: str) -> list[int]:
+    """``16-63`` (or ``5``) as the list of core numbers, refused when this machine lacks one."""
+    first, _, last = text.partition("-")
+    cores = list(range(int(first), int(last or first) + 1))
+    missing = sorted(set(cores) - os.sched_getaffinity(0))
+    if not cores or missing:
+        raise argparse.ArgumentTypeError(
+            f"--brax-cpus {text}: this machine has no core(s) {missing[:8]} to run on"
+        )
+    return cores
+
+
+def seed_command(agent: str, seed: str, args, out: str) -> list[str]:
+    """``advisor-jax train`` of one brax seed."""
+    command = [
+        "advisor-jax", "train", "--agent", agent, "--preset", args.preset,
+        "--seeds", "1", "--seed", seed, "--eval-seed", "0",
+        "--eval-episodes", str(args.eval_episodes), "--out", out, "--no-progress",
+    ]  # fmt: skip
+    return command + (["--episodes", str(args.episodes)] if args.episodes else [])
+
+
+def start_seed(agent: str, seed: int, cores: list[int], args, out: Path) -> tuple:
+    """One brax seed as its own process on the CPU, pinned to ``cores``: (process, start)."""
+    command = seed_command(agent, str(seed), args, str(out))
+    out.mkdir(parents=True, exist_ok=True)
+    log = open(out.parent / f"{out.name}.log", "w")  # noqa: SIM115 (closed with the process)
+    process = subprocess.Popen(
+        command, stdout=log, stderr=subprocess.STDOUT,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+        preexec_fn=lambda: os.sched_setaffinity(0, cores),
+    )  # fmt: skip
+    return process, time.perf_counter()
+
+
+def brax_on_cpus(agents: list[str], args) -> tuple[list, list[dict]]:
+    """Start every seed of every brax type in ``agents`` (cores split evenly, SAC's first);
+    returns the processes to wait for with ``finish_brax``."""
+    jobs = [(a, args.seed0 + k) for a in agents for k in range(args.seeds)]
+    if len(args.brax_cpus) < len(jobs):
+        raise SystemExit(
+            f"--brax-cpus: {len(args.brax_cpus)} cores for {len(jobs)} brax seeds; give at "
+            "least one core per seed"
+        )
+    shares = np.array_split(np.array(args.brax_cpus), len(jobs))
+    started = []
+    for (agent, seed), cores in zip(jobs, shares, strict=True):
+        out = args.runs / agent.replace("+", "_").lower() / f"seed{seed:02d}"
+        process = start_seed(agent, seed, [int(c) for c in cores], args, out)
+        started.append((agent, seed, len(cores), out, *process))
+    return started
+
+
+def finish_brax(started: list, args) -> list[dict]:
+    """Wait for the brax processes; one row per type (wall time: from the first start to the
+    last seed done; training: the sum of the seeds' ``train_seconds``)."""
+    ended = {}
+    while len(ended) < len(started):  # polled, so that each seed's end time is its own
+        for agent, seed, n_cores, out, process, t0 in started:
+            if (agent, seed) in ended or process.poll() is None:
+                continue
+            if process.returncode != 0:
+                raise SystemExit(f"{agent} seed {seed} failed: see {out.parent / out.name}.log")
+            ended[(agent, seed)] = (time.perf_counter() - t0, n_cores, out)
+        time.sleep(1.0)
+    rows = []
+    for agent in dict.fromkeys(a for a, *_ in started):
+        mine = [v for (a, _), v in ended.items() if a == agent]
+        runs = [json.loads((out / "run.json").read_text()) for *_, out in mine]
+        folder = str(mine[0][2].parent / "seedK")
+        rows.append({
+            "agent": agent,
+            "command": " ".join(seed_command(agent, "K", args, folder)),
+            "where": f"CPU, {len(mine)} one-seed processes, {mine[0][1]} core(s) each",
+            "wall_seconds": round(max(w for w, *_ in mine), 1),
+            "train_seconds": round(sum(r["train_seconds"] for r in runs), 1),
+            "seconds_per_agent": round(float(np.mean([r["train_seconds"] for r in runs])), 1),
+            "env_steps_per_agent": [s for r in runs for s in r["env_steps_per_agent"]],
+            "episodes_completed": [e for r in runs for e in r["episodes_completed"]],
+            "success": {
+                arena: float(np.mean([r["evaluation"][arena]["success"] for r in runs]))
+                for arena in runs[0]["evaluation"]
+            },
+        })  # fmt: skip
+    return rows
 
 
 def main() -> None:
@@ -65,17 +162,28 @@ def main() -> None:
                         default=["DDPG", "ATD3+AfDP", "brax-SAC", "brax-PPO"])  # fmt: skip
     parser.add_argument("--runs", type=Path, default=Path("runs/brax_bench"))
     parser.add_argument("--out", type=Path, default=Path("results/brax_baselines_cpu"))
+    parser.add_argument("--brax-cpus", type=cpu_range, default=None, metavar="FIRST-LAST",
+                        help="train each brax seed as its own process on these CPU cores, "
+                        "all at once (default: one after another in one process)")  # fmt: skip
+    parser.add_argument("--seed", dest="seed0", type=int, default=0, help="first seed")
     args = parser.parse_args()
     load_before = os.getloadavg()[0]  # the machine may be shared: say how busy it was
-    rows = [train(a, args, args.runs / a.replace("+", "_").lower()) for a in args.agents]
+    on_cpus = [a for a in args.agents if a.startswith("brax-")] if args.brax_cpus else []
+    started = brax_on_cpus(on_cpus, args) if on_cpus else []
+    rows = [
+        train(a, args, args.runs / a.replace("+", "_").lower())
+        for a in args.agents
+        if a not in on_cpus
+    ]
+    rows += finish_brax(started, args) if started else []
     load = [round(load_before, 1), round(os.getloadavg()[0], 1)]
     result = {**measure.provenance(), "preset": args.preset, "seeds": args.seeds,
               "load_average_1min": load, "rows": rows}  # fmt: skip
     atomic_write_json(args.out.with_suffix(".json"), result)
     table = writing.markdown_table(
-        ("agent", "wall time (s)", "training (s)", "per seed (s)", "env steps / agent",
-         "episodes / agent", "eval success, training arena"),
-        [(r["agent"], f"{r['wall_seconds']:,.0f}", f"{r['train_seconds']:,.0f}",
+        ("agent", "where", "wall time (s)", "training (s)", "per seed (s)",
+         "env steps / agent", "episodes / agent", "eval success, training arena"),
+        [(r["agent"], r["where"], f"{r['wall_seconds']:,.0f}", f"{r['train_seconds']:,.0f}",
           f"{r['train_seconds'] / args.seeds:,.0f}",
           f"{np.mean(r['env_steps_per_agent']):,.0f}",
           f"{np.mean(r['episodes_completed']):.0f}",
@@ -95,7 +203,10 @@ def main() -> None:
         "evaluation, files); training: run.json's `train_seconds` (advisor-jax: the "
         "population's training loop, its compile included; brax: every seed's call of "
         "brax's trainer, its compiles included). advisor-jax trains all seeds as "
-        "one vmapped program; brax trains one seed per call, one after another.",
+        "one vmapped program; brax trains one seed per call, one after another, or (where the "
+        "table says so) each seed as its own process on the CPU, all at once: their wall time runs "
+        "from the start to the last seed done, beside the population's.",
+        *[f"\n{r['agent']}, each seed: `{r['command']}`" for r in rows if "CPU," in r["where"]],
         "",
         *table,
         "",

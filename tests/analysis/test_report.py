@@ -271,3 +271,12 @@ def test_a_skipped_item_says_when_the_runs_were_scored_in_one_arena(tmp_path):
     (note,) = [line for line in said if "table1: skipped" in line]
     assert "1 point(s), e.g. DDPG, were evaluated in one arena only" in note
     assert "--eval-arenas training validation" in note
+
+
+def test_up_to_twenty_lines_in_one_legend_have_twenty_colours():
+    from matplotlib.colors import to_hex
+
+    from advisor_jax.analysis.items.base import line_colour
+
+    assert [line_colour(i, 10) for i in range(10)] == [f"C{i}" for i in range(10)]
+    assert len({to_hex(line_colour(i, 17)) for i in range(17)}) == 17  # Table 1 with brax

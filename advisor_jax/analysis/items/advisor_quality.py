@@ -30,6 +30,7 @@ from advisor_jax.analysis.items.base import (
     comparison,
     figure,
     interval_note,
+    line_colour,
     markdown_table,
     point_record,
     rank,
@@ -156,7 +157,7 @@ def _plot(series: dict, controls: dict):
     budgets = sorted({key[1] for key in series})
     fig, axes = figure(len(budgets), len(ARENAS), width=5.2, height=4.2)
     agents = sorted({m[0].agent for m in series.values()}, key=lambda a: rank(a))
-    colour = {a: f"C{i % 10}" for i, a in enumerate(agents)}
+    colour = {a: line_colour(i, len(agents)) for i, a in enumerate(agents)}
     for (_, budget, _), members in series.items():
         row = budgets.index(budget)
         by_advisor: dict[str, list[Point]] = {}

@@ -202,6 +202,16 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]], align: 
     return lines
 
 
+def line_colour(i: int, n: int):
+    """The colour of the i-th of n lines: matplotlib's ten cycle colours while they last,
+    twenty (tab20) beyond, so that up to 20 lines in one legend stay apart."""
+    if n <= 10:
+        return f"C{i}"
+    from matplotlib import colormaps
+
+    return colormaps["tab20"](i % 20)
+
+
 def seeds_with_ci(ax, x: float, values, color, label=None, log_x=False, width=0.15) -> None:
     """Per-seed values as jittered dots around ``x`` and the mean with its 95 % t interval
     (a bar only from ``stats.MIN_SEEDS_FOR_INTERVAL`` seeds on)."""

@@ -23,6 +23,7 @@ from advisor_jax.analysis.items.base import (
     Item,
     episode_axis,
     figure,
+    line_colour,
     ordered,
     simulated,
     uses_advisor_data,
@@ -79,9 +80,8 @@ def fig8(points: list[Point], context) -> Item | None:
     for i, (p, values) in enumerate(found):
         mean, sd = _mean_sd(values, REWARD_WINDOW)
         x = np.arange(1, mean.size + 1)
-        (line,) = ax.plot(
-            x, mean, lw=1.2, color=f"C{i % 10}", label=f"{p.text()} (n={len(p.seeds)})"
-        )
+        label = f"{p.text()} (n={len(p.seeds)})"
+        (line,) = ax.plot(x, mean, lw=1.2, color=line_colour(i, len(found)), label=label)
         ax.fill_between(x, mean - sd, mean + sd, color=line.get_color(), alpha=0.15)
     episode_axis(ax)
     ax.set_ylabel(f"reward per step (moving average, {REWARD_WINDOW} episodes)")
@@ -116,7 +116,7 @@ def fig9(points: list[Point], context) -> Item | None:
         ax = axes.flat[types.index(p.agent)]
         mean, sd = _mean_sd(values, COLLISION_WINDOW)
         x = np.arange(1, mean.size + 1)
-        (line,) = ax.plot(x, mean, lw=1.0, color=f"C{i % 10}", label=p.text())
+        (line,) = ax.plot(x, mean, lw=1.0, color=line_colour(i, len(found)), label=p.text())
         ax.plot(x, mean + sd, ls=":", lw=0.8, color=line.get_color())
         ax.plot(x, np.maximum(mean - sd, 0), ls=":", lw=0.8, color=line.get_color())
         ax.set_title(p.agent, fontsize=9)
@@ -165,7 +165,7 @@ def fig10(points: list[Point], context) -> Item | None:
             entry["share_of_expected_before_N_T"] = float(np.nanmean(mean[inside] / exp[inside]))
 
     agents = list(dict.fromkeys(p.agent for p, _ in found))
-    color = {a: f"C{i % 10}" for i, a in enumerate(agents)}
+    color = {a: line_colour(i, len(agents)) for i, a in enumerate(agents)}
     fig, axes = figure(1, 2, width=5.5, height=4.4)
     ax = axes[0, 0]
     for agent in agents:  # its preset's point (fewest settings changed), longest budget
