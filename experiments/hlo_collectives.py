@@ -11,9 +11,13 @@ chunk), and the JAX op and source line it came from (``advisor_jax.training.coll
 
 On a CPU-only machine the devices are forced host devices (XLA_FLAGS
 ``--xla_force_host_platform_device_count``, set here before JAX starts); on a GPU host
-``--platform gpu`` compiles for the real devices instead. The sharding and the partitioner's
-collectives are decided before any backend-specific pass, so the CPU program shows the
-collectives the GPU program gets.
+``--platform gpu`` compiles for the real devices instead. **The two differ**: the CPU
+compile of a 256-agent ATD3+AfDP chunk on two devices has no collective, the GPU compile
+(jax 0.11.2, H200) has 20 all-gathers inside the scan (results/multigpu_hlo.md), so a GPU
+answer needs a GPU:
+
+    python experiments/hlo_collectives.py --platform gpu --preset paper --agents 256 \
+        --chunk 100 --precision bf16 [--program steady]
 """
 
 from __future__ import annotations
@@ -32,6 +36,10 @@ def main() -> None:
     parser.add_argument("--devices", type=int, default=2)
     parser.add_argument("--chunk", type=int, default=20, help="env steps per chunk")
     parser.add_argument("--platform", default="cpu", choices=["cpu", "gpu"])
+    parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
+                        help="the learner's precision (AgentConfig.precision)")  # fmt: skip
+    parser.add_argument("--program", default="auto", choices=["auto", "general", "steady"],
+                        help="the chunk's program (bench_train.py --program)")  # fmt: skip
     parser.add_argument("--dump", type=Path, help="folder for the optimized HLO texts")
     args = parser.parse_args()
     if args.platform == "cpu":
@@ -49,9 +57,10 @@ def main() -> None:
     print(f"jax {jax.__version__}, {len(jax.devices())} {jax.devices()[0].platform} devices")
     total_in_loop = 0
     for name in args.agent:
-        cfg, _ = preset(args.preset, name)
+        cfg, _ = preset(args.preset, name, precision=args.precision)
         cfg = dataclasses.replace(cfg, chunk_steps=args.chunk)
-        hlo = sharded_chunk_hlo(cfg, args.agents, args.devices)
+        steady = {"auto": None, "general": False, "steady": True}[args.program]
+        hlo = sharded_chunk_hlo(cfg, args.agents, args.devices, steady)
         if args.dump:
             args.dump.mkdir(parents=True, exist_ok=True)
             (args.dump / f"{name.replace('+', '_')}.hlo.txt").write_text(hlo)

@@ -58,8 +58,10 @@ PARTS = (
 GAP_EDGES_US = (2, 5, 10, 20, 50)
 
 
-def part_of(op_name: str, has_hlo_name: bool) -> str:
+def part_of(op_name: str, has_hlo_name: bool, kernel: str = "") -> str:
     if not has_hlo_name:
+        if kernel.lower().startswith("nccl"):  # a collective between devices (sharded chunk)
+            return "collective between devices (NCCL, no HLO name)"
         return "library call (cuBLAS in a CUDA graph, no HLO name)"
     for part, scope in PARTS:
         if f"/{scope}/" in f"/{op_name}/":
@@ -135,7 +137,7 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1) -> dict:
     for e in events:
         name = e["name"]
         shape_op = instruction_of(name, instructions)
-        part = part_of(shape_op[1] if shape_op else "", shape_op is not None)
+        part = part_of(shape_op[1] if shape_op else "", shape_op is not None, name)
         by_part[part] += e["dur"]
         by_kind[kind_of(name)] += e["dur"]
         row = by_name[name]

@@ -10,6 +10,7 @@ import re
 from pathlib import Path
 
 KINDS = (
+    ("collective", re.compile(r"^nccl")),
     ("gemm", re.compile(r"gemm|xmma|cutlass|wgmma|cublas|sm90_|sm80_|matmul|dot|triton_gemm")),
     ("copy/transpose", re.compile(r"transpose|copy|memcpy|memset|concatenate|slice|pad")),
     ("reduction", re.compile(r"reduce|reduction|row_reduction|column_reduction|scatter|sort")),

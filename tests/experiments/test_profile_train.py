@@ -42,6 +42,17 @@ def test_kernels_without_an_hlo_name_are_library_calls():
     assert profile_train.part_of("", has_hlo_name=False).startswith("library call")
 
 
+def test_nccl_kernels_are_collectives_not_cublas():
+    """The sharded chunk's all-gathers (results/profile_train_multigpu/) were first counted
+    as cuBLAS calls."""
+    from advisor_jax.bench.trace import kind_of
+
+    kernel = "ncclDevKernel_AllGather_RING_LL(ncclDevKernelArgsStorage<4096ul>)"
+    assert profile_train.part_of("", False, kernel).startswith("collective between devices")
+    assert kind_of(kernel) == "collective"
+    assert kind_of("nvjet_sm90_tst_128x256_64x4_2x1_v_badd_coopA_NNN") == "gemm"
+
+
 def test_gaps_between_kernels_overlaps_count_as_none():
     events = [dict(ts=0, dur=5), dict(ts=3, dur=4), dict(ts=10, dur=1), dict(ts=30, dur=2)]
     assert profile_train.gaps_us(events) == [0.0, 3.0, 19.0]

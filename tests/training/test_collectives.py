@@ -4,8 +4,9 @@ The agents of a population are independent, so a population sharded along its ag
 must compile to a program with no collective inside the chunk's while loop (one would be
 paid at every environment step). tests/training/collectives_worker.py compiles the chunk on 2
 forced CPU devices and lists the optimized HLO's collectives
-(``advisor_jax.training.collectives``); the sharding and the partitioner's collectives are
-decided before the backend, so a GPU compile gets the same ones.
+(``advisor_jax.training.collectives``). That is the CPU compile: XLA's GPU compile of the
+same sharded program (jax 0.11.2) all-gathers inside TD3's delayed actor step, which no
+CPU test can see (results/multigpu_hlo.md, "On GPUs").
 
 Two workers run at once (XLA's compiles are mostly single-threaded): the TINY population
 and the same with a cross-agent reduction injected into its step (the check must catch
