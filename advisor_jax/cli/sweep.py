@@ -94,7 +94,16 @@ def _plan(args: SweepArgs, study, out: Path):
         raise StudyError(f"--per-device {args.per_device}: need at least one piece per device")
     device = dataclasses.replace(device, processes=args.per_device)
     table = throughput.load_table()
-    return planning.plan_study(study, device, count, args.max_agents, table), False
+    plan = planning.plan_study(study, device, count, args.max_agents, table)
+    if strays := sweep.stray_runs(out, plan):
+        raise StudyError(
+            f"{out / 'runs'} holds {len(strays)} run(s) that are no piece of the plan made now "
+            f"for {count} device(s) ({', '.join(strays[:4])}{', ...' if len(strays) > 4 else ''})"
+            ": they were trained under another plan, whose plan.json is not in "
+            f"{out}; copy that plan.json there (a plan is made for a number of devices), or "
+            "move the runs out, so that finished pieces are not trained again"
+        )
+    return plan, False
 
 
 def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:

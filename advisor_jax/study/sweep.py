@@ -63,6 +63,17 @@ def finished_pieces(out: Path, plan: Plan) -> frozenset[int]:
     return frozenset(p.index for p in plan.pieces if run_status(run_dir(out, p)) == "finished")
 
 
+def stray_runs(out: Path, plan: Plan) -> list[str]:
+    """Runs in ``out/runs`` that are no piece of ``plan``: trained under another plan (one
+    made for another number of devices cuts the study into other pieces)."""
+    names = {p.name for p in plan.pieces}
+    runs = out / "runs"
+    if not runs.is_dir():
+        return []
+    found = (d.name for d in runs.iterdir() if (d / "run.json").is_file())
+    return sorted(name for name in found if name not in names)
+
+
 def piece_command(study: Study, out: Path, index: int | str, plan: Plan) -> str:
     """The command that trains piece ``index``, with the options that cut the pieces."""
     words = ["advisor-jax", "sweep", str(study.path), "--out", str(out), "--piece", str(index)]

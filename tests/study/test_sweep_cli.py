@@ -114,6 +114,30 @@ def test_a_changed_study_is_refused_for_the_same_out(study_file, tmp_path, capsy
     assert "holds a sweep of another study" in err and "Traceback" not in err
 
 
+def test_runs_of_another_plan_without_its_plan_json_are_refused(study_file, tmp_path, capsys):
+    """Kept runs copied into a fresh DIR would not count as finished pieces under a plan made
+    for another number of devices (other pieces, other names): refused before anything
+    trains, naming them; with their plan.json beside them they count."""
+    out = tmp_path / "sweep"
+    main(["sweep", str(study_file), "--out", str(out), "--slurm", str(tmp_path / "j.sh"),
+          "--device-memory", "80", "--devices", "2"])  # fmt: skip
+    plan = plan_file.load_plan(out, load_study(study_file))
+    stray = out / "runs" / "007-DDPG-from-a-four-gpu-plan"
+    stray.mkdir(parents=True)
+    (stray / "run.json").write_text(json.dumps({"status": "finished"}))
+    assert sweep.stray_runs(out, plan) == [stray.name]
+    kept_plan = (out / "plan.json").read_text()
+    (out / "plan.json").unlink()
+    with pytest.raises(SystemExit) as exit_:
+        main(["sweep", str(study_file), "--out", str(out), "--dry-run"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "holds 1 run(s) that are no piece of the plan" in err and stray.name in err
+    assert "copy that plan.json there" in err and "Traceback" not in err
+    (out / "plan.json").write_text(kept_plan)  # the kept plan is not checked for strays
+    main(["sweep", str(study_file), "--out", str(out), "--dry-run"])
+
+
 def test_bad_input_is_one_line_before_anything_compiles(study_file, tmp_path, capsys):
     study_file.write_text(study_file.read_text().replace("[0, 2]", "[0, 9]"))
     with pytest.raises(SystemExit) as exit_:
