@@ -23,6 +23,7 @@ processes run.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
@@ -36,17 +37,20 @@ from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
 
 
-def train(agent: str, args, out: Path) -> dict:
-    """One ``advisor-jax train`` of ``agent``; its wall time and run.json's record."""
+def train_command(agent: str, args, out: Path | str, seeds: int, seed: str | None) -> list[str]:
+    """``advisor-jax train`` of ``seeds`` seeds of ``agent`` (from ``seed``, if given)."""
     command = [
         "advisor-jax", "train", "--agent", agent, "--preset", args.preset,
-        "--seeds", str(args.seeds), "--eval-seed", "0",
-        "--eval-episodes", str(args.eval_episodes), "--out", str(out), "--no-progress",
+        "--seeds", str(seeds), *(["--seed", seed] if seed is not None else []),
+        "--eval-seed", "0", "--eval-episodes", str(args.eval_episodes),
+        "--out", str(out), "--no-progress",
     ]  # fmt: skip
-    if args.episodes:
-        command += ["--episodes", str(args.episodes)]
-    if args.seed0:
-        command += ["--seed", str(args.seed0)]
+    return command + (["--episodes", str(args.episodes)] if args.episodes else [])
+
+
+def train(agent: str, args, out: Path) -> dict:
+    """One ``advisor-jax train`` of ``agent``; its wall time and run.json's record."""
+    command = train_command(agent, args, out, args.seeds, str(args.seed0) if args.seed0 else None)
     started = time.perf_counter()
     subprocess.run(command, check=True)
     wall = time.perf_counter() - started
@@ -77,32 +81,34 @@ def cpu_range(text: str) -> list[int]:
     return cores
 
 
-def seed_command(agent: str, seed: str, args, out: str) -> list[str]:
-    """``advisor-jax train`` of one brax seed."""
-    command = [
-        "advisor-jax", "train", "--agent", agent, "--preset", args.preset,
-        "--seeds", "1", "--seed", seed, "--eval-seed", "0",
-        "--eval-episodes", str(args.eval_episodes), "--out", out, "--no-progress",
-    ]  # fmt: skip
-    return command + (["--episodes", str(args.episodes)] if args.episodes else [])
+@dataclasses.dataclass
+class BraxSeed:
+    """One brax seed training as its own process on the CPU."""
+
+    agent: str
+    seed: int
+    cores: int  # how many it is pinned to
+    out: Path
+    process: subprocess.Popen
+    started: float  # time.perf_counter()
+    seconds: float | None = None  # its wall time, once it has ended
 
 
-def start_seed(agent: str, seed: int, cores: list[int], args, out: Path) -> tuple:
-    """One brax seed as its own process on the CPU, pinned to ``cores``: (process, start)."""
-    command = seed_command(agent, str(seed), args, str(out))
+def start_seed(agent: str, seed: int, cores: list[int], args, out: Path) -> BraxSeed:
+    """One brax seed as its own process on the CPU, pinned to ``cores``."""
     out.mkdir(parents=True, exist_ok=True)
-    log = open(out.parent / f"{out.name}.log", "w")  # noqa: SIM115 (closed with the process)
-    process = subprocess.Popen(
-        command, stdout=log, stderr=subprocess.STDOUT,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-        preexec_fn=lambda: os.sched_setaffinity(0, cores),
-    )  # fmt: skip
-    return process, time.perf_counter()
+    with open(out.parent / f"{out.name}.log", "w") as log:  # the child keeps its own copy
+        process = subprocess.Popen(
+            train_command(agent, args, out, 1, str(seed)), stdout=log, stderr=subprocess.STDOUT,
+            env={**os.environ, "JAX_PLATFORMS": "cpu"},
+            preexec_fn=lambda: os.sched_setaffinity(0, cores),
+        )  # fmt: skip
+    return BraxSeed(agent, seed, len(cores), out, process, time.perf_counter())
 
 
-def brax_on_cpus(agents: list[str], args) -> tuple[list, list[dict]]:
+def brax_on_cpus(agents: list[str], args) -> list[BraxSeed]:
     """Start every seed of every brax type in ``agents`` (cores split evenly, SAC's first);
-    returns the processes to wait for with ``finish_brax``."""
+    ``finish_brax`` waits for them."""
     jobs = [(a, args.seed0 + k) for a in agents for k in range(args.seeds)]
     if len(args.brax_cpus) < len(jobs):
         raise SystemExit(
@@ -110,39 +116,36 @@ def brax_on_cpus(agents: list[str], args) -> tuple[list, list[dict]]:
             "least one core per seed"
         )
     shares = np.array_split(np.array(args.brax_cpus), len(jobs))
-    started = []
-    for (agent, seed), cores in zip(jobs, shares, strict=True):
-        out = args.runs / agent.replace("+", "_").lower() / f"seed{seed:02d}"
-        process = start_seed(agent, seed, [int(c) for c in cores], args, out)
-        started.append((agent, seed, len(cores), out, *process))
-    return started
+    return [
+        start_seed(agent, seed, [int(c) for c in cores], args,
+                   args.runs / agent.replace("+", "_").lower() / f"seed{seed:02d}")
+        for (agent, seed), cores in zip(jobs, shares, strict=True)
+    ]  # fmt: skip
 
 
-def finish_brax(started: list, args) -> list[dict]:
+def finish_brax(started: list[BraxSeed], args) -> list[dict]:
     """Wait for the brax processes; one row per type (wall time: from the first start to the
     last seed done; training: the sum of the seeds' ``train_seconds``)."""
-    ended = {}
-    while len(ended) < len(started):  # polled, so that each seed's end time is its own
-        for agent, seed, n_cores, out, process, t0 in started:
-            if (agent, seed) in ended or process.poll() is None:
+    while any(s.seconds is None for s in started):  # polled: each seed's end time its own
+        for s in started:
+            if s.seconds is not None or s.process.poll() is None:
                 continue
-            if process.returncode != 0:
-                raise SystemExit(f"{agent} seed {seed} failed: see {out.parent / out.name}.log")
-            ended[(agent, seed)] = (time.perf_counter() - t0, n_cores, out)
+            if s.process.returncode != 0:
+                raise SystemExit(f"{s.agent} seed {s.seed} failed: see {s.out}.log")
+            s.seconds = time.perf_counter() - s.started
         time.sleep(1.0)
     rows = []
-    for agent in dict.fromkeys(a for a, *_ in started):
-        mine = [v for (a, _), v in ended.items() if a == agent]
-        runs = [json.loads((out / "run.json").read_text()) for *_, out in mine]
-        folder = str(mine[0][2].parent / "seedK")
+    for agent in dict.fromkeys(s.agent for s in started):
+        mine = [s for s in started if s.agent == agent]
+        runs = [json.loads((s.out / "run.json").read_text()) for s in mine]
         rows.append({
             "agent": agent,
-            "command": " ".join(seed_command(agent, "K", args, folder)),
-            "where": f"CPU, {len(mine)} one-seed processes, {mine[0][1]} core(s) each",
-            "wall_seconds": round(max(w for w, *_ in mine), 1),
+            "command": " ".join(train_command(agent, args, mine[0].out.parent / "seedK", 1, "K")),
+            "where": f"CPU, {len(mine)} one-seed processes, {mine[0].cores} core(s) each",
+            "wall_seconds": round(max(s.seconds for s in mine), 1),
             "train_seconds": round(sum(r["train_seconds"] for r in runs), 1),
             "seconds_per_agent": round(float(np.mean([r["train_seconds"] for r in runs])), 1),
-            "env_steps_per_agent": [s for r in runs for s in r["env_steps_per_agent"]],
+            "env_steps_per_agent": [n for r in runs for n in r["env_steps_per_agent"]],
             "episodes_completed": [e for r in runs for e in r["episodes_completed"]],
             "success": {
                 arena: float(np.mean([r["evaluation"][arena]["success"] for r in runs]))

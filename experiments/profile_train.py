@@ -60,7 +60,7 @@ GAP_EDGES_US = (2, 5, 10, 20, 50)
 
 def part_of(op_name: str, has_hlo_name: bool, kernel: str = "") -> str:
     if not has_hlo_name:
-        if kernel.lower().startswith("nccl"):  # a collective between devices (sharded chunk)
+        if kind_of(kernel) == "collective":  # NCCL, between devices (a sharded chunk)
             return "collective between devices (NCCL, no HLO name)"
         return "library call (cuBLAS in a CUDA graph, no HLO name)"
     for part, scope in PARTS:

@@ -52,7 +52,7 @@ def test_each_brax_type_is_timed_by_its_own_seeds(monkeypatch, tmp_path):
                 "evaluation": {"training": {"success": 0.5}},
             }
             (out / "run.json").write_text(json.dumps(run))
-            started.append((agent, seed, 2, out, FakeProcess(clock, end), 0.0))
+            started.append(bench.BraxSeed(agent, seed, 2, out, FakeProcess(clock, end), 0.0))
     args = SimpleNamespace(preset="quick", eval_episodes=3, episodes=0)
     rows = {r["agent"]: r for r in bench.finish_brax(started, args)}
     assert rows["brax-SAC"]["wall_seconds"] == pytest.approx(800, abs=1)
