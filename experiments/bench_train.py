@@ -95,11 +95,11 @@ def main() -> None:
     parser.add_argument(
         "--program",
         default="auto",
-        choices=sorted(PROGRAMS),
-        help="the chunk's program: auto (as training picks it: the latency-bound program "
-        "for populations of at most program.LATENCY_BOUND_AGENTS per GPU), general (a "
-        "lax.cond per step for warm-up and the TD3 delay, XLA's scheduling) or steady (the "
-        "latency-bound program: no conditional in the loop, overlapping kernels)",
+        choices=PROGRAMS,
+        help="the chunk's program: auto (as training picks it, program.choose_program), "
+        "general (a lax.cond per step for warm-up and the TD3 delay), steady (past warm-up "
+        "no conditional in the loop) or latency-bound (the steady program with overlapping "
+        "kernels and whole-loop graphs: more memory; before 2026-11-27 named 'steady')",
     )
     parser.add_argument(
         "--motion",

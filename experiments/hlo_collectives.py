@@ -17,7 +17,7 @@ compile of a 256-agent ATD3+AfDP chunk on two devices has no collective, the GPU
 answer needs a GPU:
 
     python experiments/hlo_collectives.py --platform gpu --preset paper --agents 256 \
-        --chunk 100 --precision bf16 [--program steady]
+        --chunk 100 --precision bf16 [--program general|steady|latency-bound]
 """
 
 from __future__ import annotations
@@ -38,8 +38,10 @@ def main() -> None:
     parser.add_argument("--platform", default="cpu", choices=["cpu", "gpu"])
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
                         help="the learner's precision (AgentConfig.precision)")  # fmt: skip
-    parser.add_argument("--program", default="auto", choices=["auto", "general", "steady"],
-                        help="the chunk's program (bench_train.py --program)")  # fmt: skip
+    parser.add_argument("--program", default="auto",
+                        choices=["auto", "general", "steady", "latency-bound"],
+                        help="the chunk's program (program.PROGRAMS; auto: as training "
+                        "picks it)")  # fmt: skip
     parser.add_argument("--dump", type=Path, help="folder for the optimized HLO texts")
     args = parser.parse_args()
     if args.platform == "cpu":
@@ -59,8 +61,8 @@ def main() -> None:
     for name in args.agent:
         cfg, _ = preset(args.preset, name, precision=args.precision)
         cfg = dataclasses.replace(cfg, chunk_steps=args.chunk)
-        steady = {"auto": None, "general": False, "steady": True}[args.program]
-        hlo = sharded_chunk_hlo(cfg, args.agents, args.devices, steady)
+        program = None if args.program == "auto" else args.program
+        hlo = sharded_chunk_hlo(cfg, args.agents, args.devices, program)
         if args.dump:
             args.dump.mkdir(parents=True, exist_ok=True)
             (args.dump / f"{name.replace('+', '_')}.hlo.txt").write_text(hlo)

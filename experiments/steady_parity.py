@@ -65,8 +65,8 @@ def compare(args: argparse.Namespace) -> tuple[list[dict], bool]:
     against steady(S) and against general(S one ulp up). Returns (rows, steady built)."""
     cfg, hp = preset(args.preset, args.agent, precision=args.precision)
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
-    _, init_fn, general_fn = population_functions(cfg, steady=False)
-    trainer, _, steady_fn = population_functions(cfg, steady=True)
+    _, init_fn, general_fn = population_functions(cfg, program="general")
+    trainer, _, steady_fn = population_functions(cfg, program=args.program)
     seeds = list(range(args.agents))
     hp, _ = build_population(hp, {}, seeds=seeds)
     state, step, rows = init_fn(agent_keys(seeds)), 0, []
@@ -106,6 +106,9 @@ def main() -> int:
     parser.add_argument("--precision", default="bf16", choices=["fp32", "bf16"])
     parser.add_argument("--chunk", type=int, default=100, help="env steps per chunk")
     parser.add_argument("--chunks", type=int, default=3, help="chunks after warm-up")
+    parser.add_argument("--program", default="latency-bound", choices=["steady", "latency-bound"],
+                        help="the conditional-free program set against the general one "
+                        "(program.PROGRAMS)")  # fmt: skip
     parser.add_argument("--name", default="steady_parity")
     parser.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()

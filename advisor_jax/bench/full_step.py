@@ -16,12 +16,13 @@ import jax.numpy as jnp
 
 from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure
+from advisor_jax.training import program
 from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import population_functions
 
-PROGRAMS = {"auto": None, "general": False, "steady": True}
-"""``--program``: ``population_functions``'s ``steady`` argument."""
+PROGRAMS = ("auto", *program.PROGRAMS)
+"""``--program``: auto (as training picks it, ``program.choose_program``) or one of
+``program.PROGRAMS``."""
 
 
 def full_step(
@@ -33,7 +34,7 @@ def full_step(
     chunk: int = 500,
     repeats: int = 3,
     motion: str = "kinematic",
-    program: str = "auto",
+    chunk_program: str = "auto",
 ) -> dict:
     """Agent env-steps/s of ``n`` agents of ``agent`` at ``preset_name`` on ``devices``
     devices, the learner at ``precision``: best of ``repeats`` chunks of ``chunk`` steps
@@ -42,7 +43,8 @@ def full_step(
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=chunk, episodes=100_000, motion=motion)
     placement = place(n, devices)
-    _, init_fn, chunk_fn = population_functions(cfg, placement, PROGRAMS[program])
+    choice = None if chunk_program == "auto" else chunk_program
+    _, init_fn, chunk_fn = program.population_functions(cfg, placement, choice)
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
     hp = put(hp, placement)
     keys = agent_keys(list(range(n)))

@@ -49,6 +49,12 @@ def virtualisation() -> str:
     return "bare metal" if "cpu" in out.lower() else "unknown virtualisation"
 
 
+MEMORY_SETTINGS = ("XLA_PYTHON_CLIENT_MEM_FRACTION", "XLA_PYTHON_CLIENT_PREALLOCATE",
+                   "XLA_PYTHON_CLIENT_ALLOCATOR")  # fmt: skip
+"""JAX's GPU memory settings (environment variables) a report records when set: they decide
+how large a population fits."""
+
+
 def provenance(with_jax: bool = True) -> dict[str, Any]:
     """Where and when a number was measured: one dict for every report that records one.
 
@@ -71,6 +77,9 @@ def provenance(with_jax: bool = True) -> dict[str, Any]:
         record.update(backend=device.platform, device=device.device_kind, jax=jax.__version__)
         if os.environ.get("XLA_FLAGS"):  # a number measured under other flags says so
             record["xla_flags"] = os.environ["XLA_FLAGS"]
+        memory = {k: os.environ[k] for k in MEMORY_SETTINGS if k in os.environ}
+        if memory:  # and one measured with another share of the GPU's memory
+            record["memory_settings"] = memory
     return record
 
 

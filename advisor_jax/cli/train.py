@@ -61,7 +61,9 @@ def train_command(args: TrainArgs) -> None:
             checkpoint_every=args.checkpoint_every,
             resume=args.resume,
             progress=not args.no_progress,
-            meta={"preset": args.preset},
+            meta={"preset": args.preset}
+            | ({} if args.program == "auto" else {"program": args.program}),
+            chunk_program=None if args.program == "auto" else args.program,
             devices=args.devices,
             eval_seed=args.eval_seed,
             tracker=tracker,

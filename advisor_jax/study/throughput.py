@@ -5,8 +5,8 @@ The estimate is read from a table derived from measurements kept in ``results/``
 * agent env-steps/s of the full training step, per device kind, learner precision, network
   size (``paper`` and ``stable`` share one) and population size: the rows of
   ``experiments/bench_train.py``'s reports (``results/bench_train*.json``,
-  ``results/bench_train_largest/*.json``), ATD3+AfDP, the newest date's rows (older ones
-  only for population sizes it lacks, where it has a single row);
+  ``results/bench_train_largest/*.json``), ATD3+AfDP, the newest program's rows: those of
+  the newest date with several rows and of any later date (``_newest_program``);
 * each agent type's speed relative to ATD3+AfDP and its mean training-episode length, per
   training arena, from kept runs that trained every type alike on one device
   (``results/table1_stable/run_data``, ``results/table2/run_data``): the DDPG family
@@ -69,14 +69,24 @@ def _bench_rows(paths: list[Path]) -> list[dict]:
     for row in rows:
         by_key.setdefault((row["device"], row["precision"], row["size"]), []).append(row)
     kept = []
-    for found in by_key.values():  # the newest date's program; older rows only for other sizes
-        newest = max(r["date"] for r in found)
-        chosen = {r["agents"]: r for r in found if r["date"] == newest}
-        if len(chosen) < 2:
-            for r in sorted(found, key=lambda r: r["date"]):
-                chosen.setdefault(r["agents"], r)
-        kept += chosen.values()
+    for found in by_key.values():
+        kept += _newest_program(found).values()
     return sorted(kept, key=lambda r: (r["device"], r["precision"], r["agents"]))
+
+
+def _newest_program(found: list[dict]) -> dict[int, dict]:
+    """Rows of one device, precision and size by population: those of the newest date that
+    measured several populations (the newest program) and of any later date (single rows,
+    such as a larger population), each population's newest; all dates where no date has
+    several rows."""
+    by_date = sorted(found, key=lambda r: r["date"], reverse=True)
+    dates = [r["date"] for r in by_date]
+    base = next((d for d in dates if dates.count(d) >= 2), dates[-1])
+    chosen: dict[int, dict] = {}
+    for r in by_date:
+        if r["date"] >= base:
+            chosen.setdefault(r["agents"], r)
+    return chosen
 
 
 def _type_rows(run_root: Path) -> dict:

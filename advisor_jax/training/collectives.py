@@ -194,11 +194,10 @@ def find_collectives(hlo: str) -> list[Collective]:
     return found
 
 
-def sharded_chunk_hlo(cfg, n_agents: int, devices: int, steady: bool | None = None) -> str:
+def sharded_chunk_hlo(cfg, n_agents: int, devices: int, program: str | None = None) -> str:
     """Optimized HLO text of ``cfg``'s population chunk, ``n_agents`` agents sharded over
     the first ``devices`` devices as ``run_training`` shards them (compiled, not run);
-    ``steady``: the chunk's program (``program.population_functions``; None: as training
-    picks it)."""
+    ``program``: the chunk's program (``program.PROGRAMS``; None: as training picks it)."""
     import jax
     import jax.numpy as jnp
 
@@ -208,7 +207,7 @@ def sharded_chunk_hlo(cfg, n_agents: int, devices: int, steady: bool | None = No
     from advisor_jax.training.program import population_functions
 
     placement = place(n_agents, devices)
-    _, init_fn, chunk_fn = population_functions(cfg, placement, steady)
+    _, init_fn, chunk_fn = population_functions(cfg, placement, program)
     hp, _ = build_population(default_hparams(cfg.agent), {}, seeds=list(range(n_agents)))
 
     def abstract(tree):

@@ -100,6 +100,7 @@ def run_training(
     console: Console | None = None,
     meta: Mapping | None = None,
     program: tuple | None = None,
+    chunk_program: str | None = None,
     devices: int | None = None,
     eval_seed: int | None = None,
     points: Sequence[Mapping[str, float]] | None = None,
@@ -111,7 +112,8 @@ def run_training(
     ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is. ``devices``: how
     many of ``jax.devices()`` share the agents (None: all; ``devices.place``). ``program``
     is ``population_functions(cfg, placement)`` for that placement when the caller already
-    compiled it (tests, several runs of one config); None builds it here. Raises
+    compiled it (tests, several runs of one config); None builds it here, with
+    ``chunk_program`` (``program.PROGRAMS``; None: ``program.choose_program``). Raises
     ValueError for a bad option before anything is written, and ``runlock.RunDirectoryBusy``
     if another process is training into ``out_dir``. An interrupt (Ctrl-C, SIGTERM, SIGHUP)
     saves a checkpoint at the end of the current chunk and raises
@@ -151,7 +153,7 @@ def run_training(
     baseline = cfg.agent.baseline
     check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
-    program = program or population_functions(cfg, placement)  # built, not yet compiled
+    program = program or population_functions(cfg, placement, chunk_program)  # not compiled
     limits.check_steps(program[0].max_steps, cfg.chunk_steps)
     keys = agent_keys([a["seed"] for a in agents])
     abstract = jax.eval_shape(jax.vmap(program[0].init), keys)

@@ -7,8 +7,10 @@ leave open:
 
 * which trainer: the paper's agents' (``train.make_train``) or a baseline's, whose prior
   phases wrap the same core (``training/prior/``);
-* the chunk's programs: a population of at most ``LATENCY_BOUND_AGENTS`` agents per GPU also
-  compiles the steady program (``train.make_train``'s ``steady``; ``latency_bound``);
+* the chunk's program (``PROGRAMS``, ``choose_program``): the general program, the steady
+  one (``train.make_train``'s ``steady``: sharded populations on GPUs) or the latency-bound
+  one (the steady program with overlapping kernels, for at most ``LATENCY_BOUND_AGENTS``
+  agents per GPU);
 * the twin critics' input layout (``twin_inputs_per_critic``, ``networks.apply_critics``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
@@ -98,6 +100,20 @@ def twin_inputs_per_critic(backend: str | None = None) -> bool:
     return backend == "gpu"
 
 
+PROGRAMS = ("general", "steady", "latency-bound")
+"""The chunk's programs (``population_functions``' ``program``):
+
+* ``general``: one ``lax.cond`` per step for warm-up and TD3's delayed actor step, XLA's
+  scheduling;
+* ``steady``: past warm-up, blocks of d steps written out, the first with the actor step, no
+  conditional in the loop (``train.make_train``'s ``steady``), XLA's scheduling;
+* ``latency-bound``: the steady program compiled with overlapping kernels and whole-loop
+  graphs (``compiler_options``): faster for small populations, more memory.
+
+Where a config has no steady program (``make_train``) the steady ones fall back to the
+general program."""
+
+
 def latency_bound(placement: Placement | None, backend: str | None = None) -> bool:
     """Whether ``placement``'s population gets the latency-bound program on ``backend``
     (JAX's default when None): at most ``LATENCY_BOUND_AGENTS`` agents per GPU. An unknown
@@ -108,27 +124,54 @@ def latency_bound(placement: Placement | None, backend: str | None = None) -> bo
     return placement.n_padded // placement.n_devices <= LATENCY_BOUND_AGENTS
 
 
+def choose_program(placement: Placement | None, backend: str | None = None) -> str:
+    """The chunk's program (``PROGRAMS``) for ``placement``'s population on ``backend``
+    (JAX's default when None):
+
+    * latency-bound where it pays (``latency_bound``: at most ``LATENCY_BOUND_AGENTS`` per
+      GPU);
+    * steady for a larger population sharded over several GPUs. XLA's GPU compile (jax
+      0.11.2, its default partitioner Shardy) puts 20 all-gathers into the general
+      program's loop, all in the conditional of TD3's delayed actor step; the steady loop
+      has no conditional and none of them. 256 bf16 agents on two / four H200s then run
+      1.95× / 3.70× one GPU instead of 1.26× / 1.70× (``results/multigpu_hlo.md``,
+      ``results/bench_multigpu.md``). It costs memory: 46 GiB for 512 agents on one GPU
+      against the general program's 34;
+    * else the general program: CPUs (whose results stay bit for bit what they were) and a
+      larger population on one GPU, where the steady program is 4 % faster at 256 and 512
+      bf16 agents but needs that third more memory, which would shrink the largest
+      population that fits."""
+    backend = jax.default_backend() if backend is None else backend
+    if latency_bound(placement, backend):
+        return "latency-bound"
+    if backend == "gpu" and placement is not None and placement.n_devices > 1:
+        return "steady"
+    return "general"
+
+
 def population_functions(
-    cfg: TrainConfig, placement: Placement | None = None, steady: bool | None = None
+    cfg: TrainConfig, placement: Placement | None = None, program: str | None = None
 ):
     """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
 
-    ``steady``: whether this is the latency-bound program (see ``LATENCY_BOUND_AGENTS``);
-    None: where it pays, decided from ``placement`` (``latency_bound``).
+    ``program``: one of ``PROGRAMS``; None: as ``choose_program`` picks it for ``placement``.
 
     With a multi-device ``placement`` the agent axis of keys, state, hyperparameters and
     metrics is sharded over its mesh and the step index replicated (``devices``); inputs
     must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
     functions (jit compiles on their first call); callers that train several populations
     of one config keep and reuse them."""
-    steady = latency_bound(placement) if steady is None else steady
+    program = choose_program(placement) if program is None else program
+    if program not in PROGRAMS:
+        raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
+    overlap = program == "latency-bound"
     per_critic = twin_inputs_per_critic()
     # The agent axis carries the mesh axis's name: a collective over it inside the step
     # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
     # written; tests/training/test_collectives.py injects one to show that its check of the
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
-        trainer = make_train(cfg, steady, per_critic)
+        trainer = make_train(cfg, program != "general", per_critic)
         chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
     else:  # LfD, MCP+MF: the gate from every agent but the padding ones, unbatched
         baseline = make_prior_program(cfg, per_critic)
@@ -136,7 +179,7 @@ def population_functions(
         trainer, chunk = baseline.trainer, baseline.population_chunk(n_real, AXIS)
     init = jax.vmap(trainer.init)
     # A baseline (no steady program) still overlaps its kernels when latency-bound.
-    options = compiler_options(cfg.agent.precision, overlap=steady, steady=trainer.steady)
+    options = compiler_options(cfg.agent.precision, overlap=overlap, steady=trainer.steady)
     if placement is None or placement.mesh is None:
         return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0, compiler_options=options)
     agents, replicated = placement.agents(), placement.replicated()

@@ -171,3 +171,22 @@ def test_time_under_the_mjx_robot_uses_its_measured_speed_and_episode_length(tmp
     steps = 16 * 40 * 80.0  # agents x episodes x the mjx robot's steps per episode
     rate = 1600.0 * 0.75 * 0.5  # ATD3+AfDP's rate x the motion factor x the type's speed
     assert piece.seconds == pytest.approx(steps / rate + throughput.COMPILE_S)
+
+
+def test_the_throughput_table_keeps_the_newest_program_and_later_single_rows():
+    """The newest date with several populations is the program in use; a later single row
+    (a larger population measured alone) joins it; older rows of other sizes do not."""
+    from advisor_jax.study.throughput import _newest_program
+
+    def row(date, agents):
+        return {"date": date, "agents": agents}
+
+    found = [row("2026-11-24", 512), row("2026-11-24", 768), row("2026-11-25", 64),
+             row("2026-11-25", 768), row("2026-11-27", 1024)]  # fmt: skip
+    assert _newest_program(found) == {
+        1024: row("2026-11-27", 1024),
+        768: row("2026-11-25", 768),
+        64: row("2026-11-25", 64),
+    }
+    alone = [row("2026-11-24", 512), row("2026-11-25", 768)]  # no date with several rows
+    assert _newest_program(alone) == {768: alone[1], 512: alone[0]}

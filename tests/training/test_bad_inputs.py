@@ -123,15 +123,23 @@ def test_absurd_evaluation_sizes_are_refused(tmp_path, monkeypatch, capsys, argv
     assert list(tmp_path.iterdir()) == []
 
 
-def test_out_of_device_memory_is_one_line(monkeypatch, capsys):
+@pytest.mark.parametrize("share", [None, "0.5"])
+def test_out_of_device_memory_is_one_line(monkeypatch, capsys, share):
     def exhausted(args):
         raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 80 GiB")
 
     monkeypatch.setattr("advisor_jax.cli.main.train_command", exhausted)
+    if share is None:
+        monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    else:
+        monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", share)
     with pytest.raises(SystemExit) as info:
         cli_main(["train"])
     assert info.value.code == 2
-    assert "the device ran out of memory (RESOURCE_EXHAUSTED" in one_error_line(capsys)
+    line = one_error_line(capsys)
+    assert "the device ran out of memory (RESOURCE_EXHAUSTED" in line
+    # JAX's default share: how to raise it; a share the user chose: left alone
+    assert ("XLA_PYTHON_CLIENT_MEM_FRACTION=0.95" in line) == (share is None)
 
 
 def test_out_that_is_a_file_is_named(tmp_path, capsys, tiny_functions):

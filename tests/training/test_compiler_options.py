@@ -71,8 +71,10 @@ def test_the_training_chunk_compiles_with_its_learners_options(monkeypatch):
 
     monkeypatch.setattr(program, "compiler_options", options)
     cfg = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
-    _, init_fn, chunk_fn = program.population_functions(cfg, steady=True)
-    assert asked == [("bf16", True, True)]
+    for name in ("general", "steady"):  # XLA's scheduling: no overlapping kernels
+        program.population_functions(cfg, program=name)
+    _, init_fn, chunk_fn = program.population_functions(cfg, program="latency-bound")
+    assert asked == [("bf16", False, False), ("bf16", False, True), ("bf16", True, True)]
     hp, _ = build_population(HParams(), {}, seeds=[0])
     state = init_fn(agent_keys([0]))  # init keeps XLA's defaults
     with pytest.raises(Exception, match="No such compile option"):

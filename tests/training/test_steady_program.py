@@ -45,7 +45,7 @@ def relative(a, b) -> float:
 
 @pytest.fixture(scope="module")
 def steady_functions():
-    return population_functions(TINY, steady=True)
+    return population_functions(TINY, program="latency-bound")
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +62,18 @@ def test_cpus_keep_the_general_program_by_default(tiny_functions, steady_functio
     assert steady_functions[0].steady
 
 
+def _placement(n_padded: int | None, n_devices: int) -> Placement | None:
+    """A placement of ``n_padded`` agents on ``n_devices`` (None: an unknown population),
+    with a stand-in mesh: the choice reads only its size."""
+
+    class Mesh:
+        size = n_devices
+
+    if n_padded is None:
+        return None
+    return Placement(None if n_devices == 1 else Mesh(), n_padded, n_padded)
+
+
 @pytest.mark.parametrize(
     ("n_padded", "n_devices", "backend", "expected"),
     [(1, 1, "gpu", True), (LATENCY_BOUND_AGENTS, 1, "gpu", True),
@@ -70,15 +82,23 @@ def test_cpus_keep_the_general_program_by_default(tiny_functions, steady_functio
      (1, 1, "cpu", False), (None, 1, "gpu", False)],  # unknown population: not latency-bound
 )  # fmt: skip
 def test_only_small_populations_on_gpus_are_latency_bound(n_padded, n_devices, backend, expected):
-    class Mesh:
-        size = n_devices
+    assert latency_bound(_placement(n_padded, n_devices), backend) == expected
 
-    placement = (
-        None
-        if n_padded is None
-        else Placement(None if n_devices == 1 else Mesh(), n_padded, n_padded)
-    )
-    assert latency_bound(placement, backend) == expected
+
+@pytest.mark.parametrize(
+    ("n_padded", "n_devices", "backend", "expected"),
+    [(LATENCY_BOUND_AGENTS, 1, "gpu", "latency-bound"),
+     (LATENCY_BOUND_AGENTS + 1, 1, "gpu", "general"),  # one GPU: the general program's memory
+     (2 * LATENCY_BOUND_AGENTS, 2, "gpu", "latency-bound"),
+     (2 * LATENCY_BOUND_AGENTS + 2, 2, "gpu", "steady"),  # sharded: no all-gathers in the loop
+     (512, 4, "gpu", "steady"),
+     (512, 4, "cpu", "general"), (1, 1, "cpu", "general"),  # CPUs keep their results
+     (None, 1, "gpu", "general")],
+)  # fmt: skip
+def test_the_program_is_chosen_from_the_population_and_its_devices(
+    n_padded, n_devices, backend, expected
+):
+    assert program.choose_program(_placement(n_padded, n_devices), backend) == expected
 
 
 @pytest.mark.parametrize(
@@ -117,8 +137,9 @@ def test_the_steady_program_holds_no_conditional(steady_functions):
 )  # fmt: skip
 def test_the_steady_program_is_built_only_where_it_exists(overrides, built):
     cfg = dataclasses.replace(TINY, **overrides)
-    assert population_functions(cfg, steady=True)[0].steady == built
-    assert not population_functions(cfg, steady=False)[0].steady
+    assert population_functions(cfg, program="steady")[0].steady == built
+    assert population_functions(cfg, program="latency-bound")[0].steady == built
+    assert not population_functions(cfg, program="general")[0].steady
 
 
 @pytest.mark.parametrize("first_step", [40, 41, 0])  # steady; general past warm-up; warm-up
@@ -155,7 +176,43 @@ def test_a_chunk_computes_the_general_programs_steps(
 
 def test_population_functions_pick_the_program_from_the_placement(monkeypatch):
     asked = []
-    monkeypatch.setattr(program, "latency_bound", lambda p: asked.append(p) or True)
+    monkeypatch.setattr(program, "latency_bound", lambda p, b=None: asked.append(p) or True)
     trainer, _, _ = program.population_functions(TINY, place(3, 1))
     assert asked == [place(3, 1)] and trainer.steady  # as on a GPU
-    assert not program.population_functions(TINY, place(3, 1), steady=False)[0].steady
+    assert not program.population_functions(TINY, place(3, 1), "general")[0].steady
+
+
+def test_an_unknown_program_is_refused_by_name():
+    with pytest.raises(ValueError, match="'stedy'"):
+        program.population_functions(TINY, program="stedy")
+
+
+class Built(Exception):
+    """Raised by a stand-in ``population_functions``: the program was asked for."""
+
+
+@pytest.mark.parametrize(("option", "expected"), [([], None), (["--program", "steady"], "steady")])
+def test_train_program_reaches_the_built_program_and_run_json(
+    tmp_path, monkeypatch, option, expected
+):
+    """``advisor-jax train --program P`` builds program P (auto: ``choose_program``'s) and
+    records it among run.json's settings when not auto."""
+    from advisor_jax.cli.main import main as cli_main
+    from advisor_jax.training import host_loop
+
+    asked, real = [], host_loop.run_training
+
+    def recording_run(*args, **kw):
+        asked.append(kw.get("meta"))
+        return real(*args, **kw)
+
+    def built(cfg, placement, chunk_program=None):
+        asked.append(chunk_program)
+        raise Built
+
+    monkeypatch.setattr(host_loop, "run_training", recording_run)
+    monkeypatch.setattr(host_loop, "population_functions", built)
+    with pytest.raises(Built):
+        cli_main(["train", "--out", str(tmp_path / "run"), "--no-progress", *option])
+    meta = {"preset": "quick"} | ({} if expected is None else {"program": expected})
+    assert asked == [meta, expected]
