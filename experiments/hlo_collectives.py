@@ -61,8 +61,7 @@ def main() -> None:
     for name in args.agent:
         cfg, _ = preset(args.preset, name, precision=args.precision)
         cfg = dataclasses.replace(cfg, chunk_steps=args.chunk)
-        program = None if args.program == "auto" else args.program
-        hlo = sharded_chunk_hlo(cfg, args.agents, args.devices, program)
+        hlo = sharded_chunk_hlo(cfg, args.agents, args.devices, args.program)
         if args.dump:
             args.dump.mkdir(parents=True, exist_ok=True)
             (args.dump / f"{name.replace('+', '_')}.hlo.txt").write_text(hlo)

@@ -43,8 +43,7 @@ def full_step(
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=chunk, episodes=100_000, motion=motion)
     placement = place(n, devices)
-    choice = None if chunk_program == "auto" else chunk_program
-    _, init_fn, chunk_fn = program.population_functions(cfg, placement, choice)
+    _, init_fn, chunk_fn = program.population_functions(cfg, placement, chunk_program)
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
     hp = put(hp, placement)
     keys = agent_keys(list(range(n)))

@@ -349,12 +349,15 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 
 def _memory_share_hint() -> str:
-    """How to give JAX more of a GPU, while it has its default share (75 %). 1,024 paper-size
-    bf16 agents need 68 GiB of an H100's 80 and fit with 95 % (results/bench_train_largest/)."""
+    """How to give JAX more of a GPU, while it has its default share (``plan.GPU_SHARE``).
+    1,024 paper-size bf16 agents need 68 GiB of an H100's 80 and fit with 95 %
+    (results/bench_train_largest/)."""
+    from advisor_jax.study.plan import GPU_SHARE
+
     if "XLA_PYTHON_CLIENT_MEM_FRACTION" in os.environ:
         return ""
-    return (", or let JAX use more of a GPU than its default 75 % if nothing else runs on "
-            "it: XLA_PYTHON_CLIENT_MEM_FRACTION=0.95")  # fmt: skip
+    return (f", or let JAX use more of a GPU than its default {GPU_SHARE:.0%} if nothing else "
+            "runs on it: XLA_PYTHON_CLIENT_MEM_FRACTION=0.95")  # fmt: skip
 
 
 def _error_line(message: str) -> None:

@@ -197,7 +197,8 @@ def find_collectives(hlo: str) -> list[Collective]:
 def sharded_chunk_hlo(cfg, n_agents: int, devices: int, program: str | None = None) -> str:
     """Optimized HLO text of ``cfg``'s population chunk, ``n_agents`` agents sharded over
     the first ``devices`` devices as ``run_training`` shards them (compiled, not run);
-    ``program``: the chunk's program (``program.PROGRAMS``; None: as training picks it)."""
+    ``program``: the chunk's program (``program.PROGRAMS``; None or "auto": as training
+    picks it)."""
     import jax
     import jax.numpy as jnp
 

@@ -154,14 +154,15 @@ def population_functions(
 ):
     """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
 
-    ``program``: one of ``PROGRAMS``; None: as ``choose_program`` picks it for ``placement``.
+    ``program``: one of ``PROGRAMS``; None or "auto": as ``choose_program`` picks it for
+    ``placement``.
 
     With a multi-device ``placement`` the agent axis of keys, state, hyperparameters and
     metrics is sharded over its mesh and the step index replicated (``devices``); inputs
     must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
     functions (jit compiles on their first call); callers that train several populations
     of one config keep and reuse them."""
-    program = choose_program(placement) if program is None else program
+    program = choose_program(placement) if program in (None, "auto") else program
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
     overlap = program == "latency-bound"
