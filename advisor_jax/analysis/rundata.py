@@ -4,7 +4,8 @@
 not eval.json or eval_episode<N>.json, whose evaluations run.json holds, except for a run
 that stopped after writing eval.json) without indentation, the measured rates in them (the
 evaluations, computed in float32) in float32's shortest digits (0.8100000619888306 → 0.81,
-the same float32), and its metrics.npz, compressed, with
+the same float32), run.json's agent rows without the hyperparameters at their default
+and without its resume identity (``compact_json``), and its metrics.npz, compressed, with
 float64 series stored as float32, the per-episode reward per step as float16 (within
 2.5e-4; reports print fewer digits), the episode outcome and length as small integers and
 the episode return left out (reward per step × length; ``with_derived`` restores it);
@@ -61,12 +62,30 @@ def write_compact_json(path: Path, obj) -> None:
 def compact_json(name: str, record):
     """A kept JSON file's ``record`` with its float32 measurements in float32's shortest
     digits: every float of an eval*.json, and run.json's ``MEASURED_KEYS`` (not its
-    settings, which are the user's float64 values)."""
+    settings, which are the user's float64 values). A run.json's agent rows leave out the
+    hyperparameters at ``HParams``' default, which the loader reads back for a missing one
+    (``point_settings.settings_of``; half of a kept run.json), and its ``identity`` (the
+    sha256 of the full rows, which guards a resume; a kept copy is never resumed)."""
     if name.startswith("eval"):
         return float32_digits(record)
     if name == "run.json" and isinstance(record, dict):
+        record = {k: v for k, v in record.items() if k != "identity"}
+        if isinstance(record.get("agents"), list):
+            record["agents"] = [_without_defaults(row) for row in record["agents"]]
         return {k: float32_digits(v) if k in MEASURED_KEYS else v for k, v in record.items()}
     return record
+
+
+def _without_defaults(row: dict) -> dict:
+    """An agent row without the hyperparameters equal to ``HParams``' default."""
+    from advisor_jax.agent.hparams import HPARAM_DEFAULTS
+
+    def default(key, value) -> bool:
+        if key not in HPARAM_DEFAULTS or isinstance(value, bool):
+            return False
+        return isinstance(value, int | float) and float(value) == float(HPARAM_DEFAULTS[key])
+
+    return {k: v for k, v in row.items() if not default(k, v)}
 
 
 def float32_digits(value):

@@ -184,3 +184,24 @@ def test_a_kept_copy_reads_as_the_run_itself(tmp_path):
     (raw,), _ = pool(load_runs([tmp_path / "raw"]))
     (kept,), _ = pool(load_runs([tmp_path / "kept"]))
     assert raw.scores("training") == kept.scores("training") == {0: 0.86, 1: 0.7}
+
+
+def test_compact_run_leaves_default_hyperparameters_out_and_the_points_stay(tmp_path):
+    """A kept run.json's rows keep only hyperparameters away from ``HParams``' default (and
+    no identity): the loader reads the same settings, so the same points."""
+    from advisor_jax.agent.hparams import HPARAM_DEFAULTS
+
+    run = write_run(tmp_path / "full", "a", "ATD3+AfDP", [0, 1], [0.8, 0.6])
+    record = json.loads((run / "run.json").read_text())
+    record["agents"][1]["beta"] = 0.3  # one setting away from the default
+    record["identity"] = {"config_sha256": "x", "seeds": [0, 1]}
+    (run / "run.json").write_text(json.dumps(record))
+    compact_run(run, tmp_path / "kept" / "a")
+    kept = json.loads((tmp_path / "kept" / "a" / "run.json").read_text())
+    assert "identity" not in kept
+    assert kept["agents"][1]["beta"] == 0.3 and kept["agents"][1]["seed"] == 1
+    assert not any(k in HPARAM_DEFAULTS and v == HPARAM_DEFAULTS[k]
+                   for row in kept["agents"] for k, v in row.items())  # fmt: skip
+    full = {p.text(): p.settings for p in pool(load_runs([tmp_path / "full"]))[0]}
+    compact = {p.text(): p.settings for p in pool(load_runs([tmp_path / "kept"]))[0]}
+    assert full == compact and len(full) == 2
