@@ -41,7 +41,7 @@ from advisor_jax.bench import measure, writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay, make_update_loop
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.program import twin_inputs_per_critic
+from advisor_jax.training.program import network_layout
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
@@ -111,12 +111,12 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     """Seconds per agent-iteration of each piece of an update, vmapped over ``n_agents``."""
     import optax
 
-    from advisor_jax.agent.networks import apply_critics, make_critic
+    from advisor_jax.agent.networks import apply_critics, learner_functions
 
-    per_critic = twin_inputs_per_critic()
-    learner = make_learner(cfg, inputs_per_critic=per_critic)
+    layout = network_layout()
+    learner = make_learner(cfg, layout=layout)
     hp = HParams()
-    critic = make_critic(cfg, cfg.precision)
+    critic_apply = learner_functions(cfg, layout)[1]
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
     states = jax.jit(jax.vmap(learner.init))(keys)
     replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
@@ -127,7 +127,7 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     )
 
     def critic_loss(params, batch):
-        q = apply_critics(critic, params, batch.obs, batch.action, per_critic)
+        q = apply_critics(critic_apply, params, batch.obs, batch.action, layout.inputs_per_critic)
         return jnp.mean(jnp.square(q - batch.reward))
 
     pieces = {

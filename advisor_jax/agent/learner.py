@@ -71,9 +71,12 @@ from flax import struct
 from advisor_jax.agent.config import AgentConfig, HParams
 from advisor_jax.agent.diagnostics import actor_diagnostics
 from advisor_jax.agent.networks import (
+    MODULES,
+    Layout,
     apply_critics,
     init_actor,
     init_critics,
+    learner_functions,
     make_actor,
     make_critic,
 )
@@ -142,16 +145,18 @@ def _first_critic(critic_params: Any) -> Any:
 def make_learner(
     cfg: AgentConfig,
     return_bounds: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None,
-    inputs_per_critic: bool = False,
+    layout: Layout = MODULES,
 ) -> Learner:
     """Init, selector Q and the two update steps for one agent type (pure, jit/vmap-able).
 
     ``return_bounds``: γ -> (lo, hi), the interval of every achievable discounted return
     (``functools.partial(envs.reward.return_bounds, env.config)``); the critic clips Q̂ into
     it for agents with ``clip_q_target`` = 1. None: no clipping whatever the switch says.
-    ``inputs_per_critic``: the twin critics' input layout (``networks.apply_critics``) of
-    all this learner's critics, its fp32 acting critic too; the program that runs the
-    learner chooses it (``training.program.twin_inputs_per_critic``).
+    ``layout``: how the networks are computed (``networks.Layout``), which the program that
+    runs the learner chooses (``training.program.network_layout``): the twin critics' input
+    layout of all this learner's critics, its fp32 acting critic too; and whether the
+    learner's networks run as ``gemm_layers`` (each hidden layer one GEMM with its bias
+    inside) instead of the flax modules; acting (the Eq. 1 selector's Q) keeps the modules.
 
     Long: the factory of the learner's closures (init, selector Q, the two steps and the
     three whole updates), which share its networks and settings; each is short.
@@ -161,7 +166,8 @@ def make_learner(
     actor = make_actor(cfg.actor_hidden, cfg.precision)
     critic = make_critic(cfg, cfg.precision)
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
-    per_critic = inputs_per_critic
+    per_critic = layout.inputs_per_critic
+    actor_apply, critic_apply = learner_functions(cfg, layout)
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)
@@ -182,18 +188,19 @@ def make_learner(
         )
 
     def q_select(critic_params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
-        return jnp.min(apply_critics(critic_fp32, critic_params, obs, action, per_critic), axis=0)
+        q = apply_critics(critic_fp32.apply, critic_params, obs, action, per_critic)
+        return jnp.min(q, axis=0)
 
     def critic_step(
         state: LearnerState, batch: Transition, key: jax.Array, hp: HParams
     ) -> tuple[LearnerState, Metrics]:
-        next_actions = actor.apply(state.target_actor, batch.next_obs)  # [n, 2]
+        next_actions = actor_apply(state.target_actor, batch.next_obs)  # [n, 2]
         if cfg.twin:
             next_actions = smoothed_target_actions(
                 key, next_actions, hp.target_noise, hp.target_noise_clip
             )
         next_q = apply_critics(
-            critic, state.target_critic, batch.next_obs, next_actions, per_critic
+            critic_apply, state.target_critic, batch.next_obs, next_actions, per_critic
         )
         targets = critic_targets(batch.reward, batch.terminal, next_q, hp.gamma)  # [n]
         clipped = jnp.zeros((), jnp.float32)
@@ -203,7 +210,8 @@ def make_learner(
             targets = bounded
 
         def loss_fn(params):
-            q = apply_critics(critic, params, batch.obs, batch.action, per_critic)  # [n_critics, n]
+            # [n_critics, n]
+            q = apply_critics(critic_apply, params, batch.obs, batch.action, per_critic)
             losses = critic_losses(q, targets)
             return jnp.sum(losses), (losses, q)
 
@@ -229,10 +237,10 @@ def make_learner(
         q1_params = _first_critic(state.critic)
 
         def q1(obs, action):
-            return critic.apply(q1_params, obs, action)
+            return critic_apply(q1_params, obs, action)
 
         # One actor forward; the loss is differentiated w.r.t. the actions and pulled back.
-        actions, pullback = jax.vjp(lambda p: actor.apply(p, batch.obs), state.actor)
+        actions, pullback = jax.vjp(lambda p: actor_apply(p, batch.obs), state.actor)
         if cfg.advisor_target:
             targets = addpg_actor_targets(
                 q1,

@@ -22,14 +22,15 @@ Parameter layout (what ``export`` writes): ``{"params": {"hidden_0": {"kernel": 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from advisor_jax.agent import gemm_layers
 from advisor_jax.contract import spec
 
 he_init = nn.initializers.he_normal()
@@ -121,6 +122,21 @@ class Critic(nn.Module):
         return nn.Dense(1, kernel_init=he_init, dtype=jnp.float32, name="q")(x)[..., 0]
 
 
+class Layout(NamedTuple):
+    """How a learner's networks are computed on its device: the same function and parameters
+    either way, equal to rounding. ``training.program.network_layout`` chooses (both on GPUs,
+    neither on CPUs, whose results then stay bit for bit)."""
+
+    inputs_per_critic: bool = False
+    """Each twin critic reads its own copy of the inputs (``apply_critics``)."""
+    layers_in_gemm: bool = False
+    """Each hidden layer one GEMM with its bias inside (``gemm_layers``)."""
+
+
+MODULES = Layout()
+"""The flax modules as written, the twins sharing their inputs: the CPU's layout."""
+
+
 PRECISIONS = {"fp32": jnp.float32, "bf16": jnp.bfloat16}
 """``AgentConfig.precision`` → compute dtype of the hidden layers."""
 
@@ -144,6 +160,20 @@ def make_critic(cfg, precision: str = "fp32") -> Critic:
     )
 
 
+def learner_functions(cfg, layout: Layout) -> tuple[Callable, Callable]:
+    """(actor apply, critic apply) of the learner's networks at ``cfg``'s (an
+    ``AgentConfig``'s) widths and precision: the modules' ``apply``, or with
+    ``layout.layers_in_gemm`` the same functions as ``gemm_layers`` computes them."""
+    actor, critic = make_actor(cfg.actor_hidden, cfg.precision), make_critic(cfg, cfg.precision)
+    if not layout.layers_in_gemm:
+        return actor.apply, critic.apply
+    dtype = PRECISIONS[cfg.precision]
+    return (
+        partial(gemm_layers.actor_apply, dtype=dtype),
+        partial(gemm_layers.critic_apply, dtype=dtype),
+    )
+
+
 def count_params(params) -> int:
     """Number of scalar parameters in a params pytree."""
     return sum(int(x.size) for x in jax.tree_util.tree_leaves(params))
@@ -158,13 +188,14 @@ def init_critics(critic: Critic, key: jax.Array, n_critics: int):
 
 
 def apply_critics(
-    critic: Critic,
+    critic_apply: Callable,
     params,
     obs: jax.Array,
     action: jax.Array,
     inputs_per_critic: bool = False,
 ) -> jax.Array:
-    """Q-values of every stacked critic: [n_critics, ...batch].
+    """Q-values of every stacked critic: [n_critics, ...batch]; ``critic_apply``: (params,
+    obs, action) -> Q, a ``Critic``'s ``apply`` or ``gemm_layers.critic_apply``.
 
     The critics read the same (obs, action). ``inputs_per_critic`` hands each critic its own
     (broadcast) copy of them, so that each layer is one GEMM per critic; otherwise ``vmap``
@@ -175,11 +206,11 @@ def apply_critics(
     fp32 rounding, not bit for bit; ``training.program.twin_inputs_per_critic`` chooses.
     """
     if not inputs_per_critic:
-        return jax.vmap(critic.apply, in_axes=(0, None, None))(params, obs, action)
+        return jax.vmap(critic_apply, in_axes=(0, None, None))(params, obs, action)
     n = jax.tree_util.tree_leaves(params)[0].shape[0]
     obs_n = jnp.broadcast_to(obs, (n, *obs.shape))
     action_n = jnp.broadcast_to(action, (n, *action.shape))
-    return jax.vmap(critic.apply)(params, obs_n, action_n)
+    return jax.vmap(critic_apply)(params, obs_n, action_n)
 
 
 def init_actor(actor: Actor, key: jax.Array):

@@ -10,7 +10,7 @@ from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.contract import spec
-from advisor_jax.training.program import compiler_options, twin_inputs_per_critic
+from advisor_jax.training.program import compiler_options, network_layout
 
 SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=4096, batch_size=128)  # fmt: skip
@@ -27,7 +27,7 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
     kernels and a whole-loop graph. Timed alone that way the update is not faster
     (``results/bench_train_steady/``): the program pays in the full step, where the
     collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
-    learner = make_learner(cfg, inputs_per_critic=twin_inputs_per_critic())  # as training's
+    learner = make_learner(cfg, layout=network_layout())  # as training's
     hp = HParams()
     steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
 

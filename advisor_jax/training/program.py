@@ -11,7 +11,9 @@ leave open:
   one (``train.make_train``'s ``steady``: sharded populations on GPUs) or the latency-bound
   one (the steady program with overlapping kernels, for at most ``LATENCY_BOUND_AGENTS``
   agents per GPU);
-* the twin critics' input layout (``twin_inputs_per_critic``, ``networks.apply_critics``);
+* how the learner's networks are computed (``network_layout``): the twin critics' input
+  layout (``twin_inputs_per_critic``) and each hidden layer as one GEMM
+  (``layers_in_gemm``, ``agent/gemm_layers.py``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
 
@@ -24,6 +26,7 @@ from __future__ import annotations
 import jax
 
 from advisor_jax.agent.config import TrainConfig
+from advisor_jax.agent.networks import Layout
 from advisor_jax.training.devices import AXIS, Placement
 from advisor_jax.training.prior.trainer import make_prior_program
 from advisor_jax.training.train import make_train
@@ -100,6 +103,22 @@ def twin_inputs_per_critic(backend: str | None = None) -> bool:
     return backend == "gpu"
 
 
+def layers_in_gemm(backend: str | None = None) -> bool:
+    """Whether the learner's hidden layers run as one GEMM each, bias and ReLU inside
+    (``agent/gemm_layers.py``): on a GPU (``backend``: JAX's default when None), where the bias
+    add, the bias gradient's reduction and the ReLU were passes of their own over every
+    activation (``results/bench_learner_gemm_layers/``). CPUs keep the flax modules and their
+    results bit for bit."""
+    backend = jax.default_backend() if backend is None else backend
+    return backend == "gpu"
+
+
+def network_layout(backend: str | None = None) -> Layout:
+    """How the learner's networks are computed on ``backend`` (JAX's default when None):
+    ``networks.Layout`` from ``twin_inputs_per_critic`` and ``layers_in_gemm``."""
+    return Layout(twin_inputs_per_critic(backend), layers_in_gemm(backend))
+
+
 PROGRAMS = ("general", "steady", "latency-bound")
 """The chunk's programs (``population_functions``' ``program``):
 
@@ -166,16 +185,16 @@ def population_functions(
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
     overlap = program == "latency-bound"
-    per_critic = twin_inputs_per_critic()
+    layout = network_layout()
     # The agent axis carries the mesh axis's name: a collective over it inside the step
     # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
     # written; tests/training/test_collectives.py injects one to show that its check of the
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
-        trainer = make_train(cfg, program != "general", per_critic)
+        trainer = make_train(cfg, program != "general", layout)
         chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
     else:  # LfD, MCP+MF: the gate from every agent but the padding ones, unbatched
-        baseline = make_prior_program(cfg, per_critic)
+        baseline = make_prior_program(cfg, layout)
         n_real = None if placement is None else placement.n_agents
         trainer, chunk = baseline.trainer, baseline.population_chunk(n_real, AXIS)
     init = jax.vmap(trainer.init)

@@ -59,7 +59,7 @@ from advisor_jax.agent.advisor_quality import advisor_key, make_acting, memory_i
 from advisor_jax.agent.config import TrainConfig
 from advisor_jax.agent.hparams import HParams
 from advisor_jax.agent.learner import Learner, make_learner, nan_like
-from advisor_jax.agent.networks import make_actor
+from advisor_jax.agent.networks import MODULES, Layout, make_actor
 from advisor_jax.agent.noise import ou_init, ou_reset, ou_step
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.agent.selector import select_action
@@ -135,9 +135,9 @@ def init_keys(key: jax.Array) -> jax.Array:
     return jax.random.split(key, 3)
 
 
-def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
-    """The pieces of one agent type's step (static config); ``inputs_per_critic``: the
-    twin critics' input layout (``program.twin_inputs_per_critic``).
+def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
+    """The pieces of one agent type's step (static config); ``layout``: how the learner's
+    networks are computed (``program.network_layout``).
 
     Long: the factory of the step's closures, which share its env, learner and settings;
     each is short."""
@@ -146,7 +146,7 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
     advisor = resolve_advisor(cfg.advisor, env)  # a user's function checked here
     advise = make_acting(advisor.apply, advisor.params)
     bounds = functools.partial(return_bounds, env.config)
-    learner = make_learner(agent, bounds, inputs_per_critic)
+    learner = make_learner(agent, bounds, layout)
     actor = make_actor(agent.actor_hidden)
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
     action_low = jnp.asarray(spec.ACTION_LOW, jnp.float32)
@@ -282,13 +282,13 @@ def make_core(cfg: TrainConfig, inputs_per_critic: bool = False) -> Core:
     )
 
 
-def make_train(cfg: TrainConfig, steady: bool = False, inputs_per_critic: bool = False) -> Trainer:
+def make_train(cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES) -> Trainer:
     """The paper's agents' program (static config): the core's steps scanned into chunks.
 
     ``steady``: also compile the chunk's steady program, chosen per chunk (module
     docstring; ``program.latency_bound`` decides where it pays). It is only built where it
     exists: one update per step or no delay, and chunks a whole number of delay periods."""
-    core = make_core(cfg, inputs_per_critic)
+    core = make_core(cfg, layout)
     agent, learner = cfg.agent, core.learner
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
     steady = (

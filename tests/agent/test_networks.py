@@ -146,9 +146,9 @@ def _critic_outputs(critic, params, obs, action):
     w = jnp.linspace(-0.5, 1.5, obs.shape[0])
 
     def loss(p, a):
-        return jnp.sum(networks.apply_critics(critic, p, obs, a) * w)
+        return jnp.sum(networks.apply_critics(critic.apply, p, obs, a) * w)
 
-    q = networks.apply_critics(critic, params, obs, action)
+    q = networks.apply_critics(critic.apply, params, obs, action)
     g_params, g_action = jax.grad(loss, argnums=(0, 1))(params, action)
     dq_da = jax.vmap(
         jax.grad(lambda p, a: jnp.sum(critic.apply(p, obs, a)), argnums=1), in_axes=(0, None)

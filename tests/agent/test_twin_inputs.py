@@ -47,9 +47,9 @@ def _q_and_grads(critic, params, obs, action, inputs_per_critic):
 
     def one_agent(p, o, a):
         def f(p, a):
-            return jnp.sum(networks.apply_critics(critic, p, o, a, inputs_per_critic) * w)
+            return jnp.sum(networks.apply_critics(critic.apply, p, o, a, inputs_per_critic) * w)
 
-        q = networks.apply_critics(critic, p, o, a, inputs_per_critic)
+        q = networks.apply_critics(critic.apply, p, o, a, inputs_per_critic)
         return q, jax.grad(f, argnums=(0, 1))(p, a)
 
     return jax.jit(jax.vmap(one_agent))(params, obs, action)
@@ -87,7 +87,9 @@ def _dot_output_widths(inputs_per_critic: bool) -> list[int]:
     critic, params, obs, action = _population("fp32")
     one = jax.tree.map(lambda x: x[0], params)
     compiled = (
-        jax.jit(lambda p: networks.apply_critics(critic, p, obs[0], action[0], inputs_per_critic))
+        jax.jit(
+            lambda p: networks.apply_critics(critic.apply, p, obs[0], action[0], inputs_per_critic)
+        )
         .lower(one)
         .compile()
     )

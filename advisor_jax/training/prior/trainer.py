@@ -31,6 +31,7 @@ from flax import struct
 
 from advisor_jax.agent.config import TrainConfig
 from advisor_jax.agent.hparams import BaselineHParams
+from advisor_jax.agent.networks import MODULES, Layout
 from advisor_jax.agent.noise import ou_step
 from advisor_jax.agent.replay_buffer import replay_add
 from advisor_jax.agent.settings import freeze
@@ -83,9 +84,9 @@ class PriorProgram(NamedTuple):
         return chunk
 
 
-def make_prior_program(cfg: TrainConfig, inputs_per_critic: bool = False) -> PriorProgram:
+def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgram:
     """The program of ``cfg``'s baseline agent (``cfg.agent.baseline``)."""
-    core = make_core(cfg, inputs_per_critic)
+    core = make_core(cfg, layout)
     schedule = SCHEDULES[cfg.agent.baseline.kind](cfg, core.learner, core.actor, core.env)
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
 

@@ -1,0 +1,168 @@
+"""The actor and critic of ``networks``, every hidden layer one GEMM: bias and ReLU inside.
+
+A hidden layer ``relu(x @ K + b)`` is, on a GPU, a GEMM and then a pass over its output for
+the bias add and the ReLU; its backward reduces the batch in another pass for the bias
+gradient (``results/profile_learner_ops.md``: 12 % and 7 % of a 128-agent update). Here the
+input of every hidden layer carries a column of ones, so the bias is a row of the layer's
+matrix (the *augmented* matrix) and its gradient a row of the weight gradient; each layer
+writes the ones column of the next one itself (a matrix column that is 0 but for a 1 in the
+bias row: ``relu(1) = 1``). What follows the GEMM is then the ReLU alone, which cuBLASLt can
+run in the GEMM's epilogue (``training.program.compiler_options``); ``relu`` keeps the output
+as the residual of its backward, so the GEMM's result has no other reader.
+
+The critic's action joins after its first layer (``networks.JoinDense``: ``x @ K_x + a @ K_a
++ b``). Its ``a @ K_a`` would be another GEMM and another pass between the GEMM and the ReLU,
+so the action enters the first layer's input instead and that layer passes it on as
+``relu(a)`` and ``relu(-a)`` (columns of ±1); the join layer's matrix holds ``K_a`` against
+``relu(a)`` and ``-K_a`` against ``relu(-a)``: ``relu(a) K_a - relu(-a) K_a = a K_a``, one of
+the two terms 0, exactly.
+
+Widths are padded with zero columns to multiples of ``ALIGN`` (the tensor cores' 16 bytes
+at bf16); a padding column stays 0 (``relu(0)``) and gets a zero gradient. At the paper's
+sizes the critic's GEMMs are [24 → 1008 → 504 → 608], 2 % more multiply-adds than
+[22 → 1004 → 500 → 600].
+
+The same parameters (the flax trees that ``networks.Actor`` / ``networks.Critic`` initialise,
+and their gradients in the same trees) and the same function: the sums differ only in order
+and rounding (the bias is summed in the GEMM's fp32 accumulator rather than added after the
+rounding to ``dtype``), so results are equal to rounding, not bit for bit
+(``tests/agent/test_gemm_layers.py``). ``training.program.layers_in_gemm`` chooses where it
+runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+ALIGN = 8
+"""GEMM widths are padded to a multiple of this (16 bytes of bf16)."""
+
+
+def padded(n: int) -> int:
+    """``n`` rounded up to a multiple of ``ALIGN``."""
+    return -(-n // ALIGN) * ALIGN
+
+
+@jax.custom_vjp
+def relu(x: jax.Array) -> jax.Array:
+    """``max(x, 0)`` whose backward masks by the output (``y > 0`` iff ``x > 0``), so that
+    the pre-activation, the GEMM's result, is read by the ReLU alone."""
+    return jnp.maximum(x, jnp.zeros((), x.dtype))
+
+
+def _relu_forward(x):
+    y = relu(x)
+    return y, y
+
+
+def _relu_backward(y, g):
+    # The barrier keeps XLA's simplifier from rewriting ``max(x, 0) > 0`` as ``x > 0``, which
+    # would make the GEMM's result a residual again and its ReLU no longer an epilogue.
+    return (jnp.where(jax.lax.optimization_barrier(y) > 0, g, jnp.zeros((), g.dtype)),)
+
+
+relu.defvjp(_relu_forward, _relu_backward)
+
+
+def with_ones(x: jax.Array, dtype: Any) -> jax.Array:
+    """A first layer's input ``[..., k]`` → ``[..., padded(k + 1)]``: x, a column of ones,
+    zeros; in ``dtype``."""
+    k = x.shape[-1]
+    ones = jnp.ones((*x.shape[:-1], 1), x.dtype)
+    zeros = jnp.zeros((*x.shape[:-1], padded(k + 1) - k - 1), x.dtype)
+    return jnp.concatenate([x, ones, zeros], axis=-1).astype(dtype)
+
+
+def _placed(block: jax.Array, row: int, col: int, shape: tuple[int, int]) -> jax.Array:
+    """``block`` at (``row``, ``col``) of a zero matrix of ``shape``."""
+    (r, c), (n_rows, n_cols) = block.shape, shape
+    pads = ((row, n_rows - row - r, 0), (col, n_cols - col - c, 0))
+    return jax.lax.pad(block, jnp.zeros((), block.dtype), pads)
+
+
+def layer_matrix(
+    blocks: Sequence[tuple[jax.Array, int]], bias: jax.Array, k_in: int, dtype: Any
+) -> jax.Array:
+    """The augmented matrix of a hidden layer, ``[k_in, padded(n + 1)]``, in ``dtype``:
+    ``[[rows, 0, 0], [bias, 1, 0], [0, 0, 0]]``, where ``rows`` ``[k, n]`` is ``blocks``
+    (``(block, first column)`` pairs) stacked, each block at its column and 0 elsewhere.
+    Against an input ``[x, 1, 0…]`` it gives ``[x @ rows + bias, 1, 0…]``.
+
+    Built as a sum of zero-padded pieces, one elementwise pass that XLA fuses with the
+    cast: the pass the unaugmented weights took for their cast to bf16 alone (a
+    concatenation instead compiles to a kernel that took twice as long on an H100)."""
+    n = bias.shape[0]
+    shape = (k_in, padded(n + 1))
+    bias_row = jnp.concatenate([bias, jnp.ones((1,), bias.dtype)])[None]
+    matrix, row = _placed(bias_row, sum(b.shape[0] for b, _ in blocks), 0, shape), 0
+    for block, col in blocks:
+        matrix = matrix + _placed(block, row, col, shape)
+        row += block.shape[0]
+    return matrix.astype(dtype)
+
+
+def head_matrix(kernel: jax.Array, bias: jax.Array, k_in: int) -> jax.Array:
+    """An output head's ``[k_in, n]`` = ``[[kernel], [bias], [0]]`` (fp32, no ones column)."""
+    k, n = kernel.shape
+    return _placed(kernel, 0, 0, (k_in, n)) + _placed(bias[None], k, 0, (k_in, n))
+
+
+def _dot(x: jax.Array, matrix: jax.Array) -> jax.Array:
+    return jax.lax.dot_general(x, matrix, (((x.ndim - 1,), (0,)), ((), ())))
+
+
+def hidden(x: jax.Array, blocks, bias: jax.Array, dtype: Any) -> jax.Array:
+    """One hidden layer on an augmented input: ``relu([x, 1, 0…] @ layer_matrix(blocks, bias))``;
+    ``blocks``: a kernel ``[k, n]``, or ``(block, first column)`` pairs (``layer_matrix``)."""
+    blocks = [(blocks, 0)] if isinstance(blocks, jax.Array) else blocks
+    return relu(_dot(x, layer_matrix(blocks, bias, x.shape[-1], dtype)))
+
+
+def head(x: jax.Array, dense: dict) -> jax.Array:
+    """The fp32 output head (``nn.Dense`` at fp32) on an augmented input."""
+    x = x.astype(jnp.float32)
+    return _dot(x, head_matrix(dense["kernel"], dense["bias"], x.shape[-1]))
+
+
+def actor_apply(params: Any, obs: jax.Array, dtype: Any = jnp.float32) -> jax.Array:
+    """``networks.Actor(dtype=dtype).apply(params, obs)``: π(s; φ) → (V, ω)."""
+    p = params["params"]
+    x = with_ones(obs, dtype)
+    n_hidden = sum(name.startswith("hidden_") for name in p)
+    for i in range(n_hidden):
+        x = hidden(x, p[f"hidden_{i}"]["kernel"], p[f"hidden_{i}"]["bias"], dtype)
+    logits = head(x, p["head"])
+    return jnp.stack([jax.nn.sigmoid(logits[..., 0]), jnp.tanh(logits[..., 1])], axis=-1)
+
+
+def _pass_on_signs(n: int, dtype: Any) -> jax.Array:
+    """[n, 2n]: input j → columns (+a_j, -a_j)."""
+    return jnp.kron(jnp.eye(n, dtype=dtype), jnp.asarray([[1.0, -1.0]], dtype))
+
+
+def critic_apply(
+    params: Any, obs: jax.Array, action: jax.Array, dtype: Any = jnp.float32
+) -> jax.Array:
+    """``networks.Critic(dtype=dtype).apply(params, obs, action)``: Q(s, a; θ)."""
+    p = params["params"]
+    n_act = action.shape[-1]
+    x = with_ones(jnp.concatenate([obs, action.astype(obs.dtype)], axis=-1), dtype)
+    state = p["state"]
+    width = state["kernel"].shape[-1]
+    # [[K_s, 0], [0, ±1]]: the state layer, and the action passed on
+    first = [(state["kernel"], 0), (_pass_on_signs(n_act, state["kernel"].dtype), width)]
+    first_bias = jnp.pad(state["bias"], (0, 2 * n_act))
+    x = hidden(x, first, first_bias, dtype)  # [h, relu(±a), 1, 0…]
+    join = p["hidden_0"]
+    k_a = join["kernel"]["action"]  # [n_act, out]
+    signed = jnp.stack([k_a, -k_a], axis=1).reshape(2 * n_act, -1)  # against relu(+a), relu(-a)
+    x = hidden(x, [(join["kernel"]["state"], 0), (signed, 0)], join["bias"], dtype)
+    i = 1
+    while f"hidden_{i}" in p:
+        x = hidden(x, p[f"hidden_{i}"]["kernel"], p[f"hidden_{i}"]["bias"], dtype)
+        i += 1
+    return head(x, p["q"])[..., 0]

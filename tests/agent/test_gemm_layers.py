@@ -1,0 +1,147 @@
+"""Each hidden layer one GEMM (agent/gemm_layers.py, ``networks.Layout.layers_in_gemm``).
+
+The same function as the flax modules on the same parameters: values, parameter gradients
+and ∇_a Q agree to fp32 rounding; in bf16 the layout is as close to fp32 as the modules'
+bf16. The augmented matrices hold the kernel, the bias row and the ones column where the
+docstring says; every GEMM width is a multiple of ``ALIGN``. A learner computing with them
+takes the same updates as one computing with the modules. GPUs get the layout, CPUs not.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from advisor_jax.agent import gemm_layers, networks
+from advisor_jax.agent.config import HParams, parse_agent
+from advisor_jax.agent.learner import make_learner
+from advisor_jax.bench.learner_loop import SMALL, fill_replay
+from advisor_jax.contract import spec
+from advisor_jax.training.program import network_layout
+
+BATCH = 16
+
+
+def _with_biases(params, key):
+    """The modules initialise biases to 0; shifted, every bias row matters."""
+    leaves, tree = jax.tree.flatten(params)
+    keys = jax.random.split(key, len(leaves))
+    return tree.unflatten(
+        [x + 0.1 * jax.random.normal(k, x.shape) for x, k in zip(leaves, keys, strict=True)]
+    )
+
+
+@pytest.fixture(scope="module")
+def nets():
+    actor, critic = networks.Actor(hidden=(24, 12)), networks.Critic(30, (20, 12))
+    k_a, k_c, k_o, k_u = jax.random.split(jax.random.key(3), 4)
+    actor_params = _with_biases(networks.init_actor(actor, k_a), k_a)
+    critic_params = _with_biases(critic.init(k_c, jnp.zeros((1, 20)), jnp.zeros((1, 2))), k_c)
+    obs = jax.random.normal(k_o, (BATCH, spec.OBS_SIZE))
+    action = jax.random.uniform(k_u, (BATCH, spec.ACTION_SIZE), minval=-1.0)
+    return actor, critic, actor_params, critic_params, obs, action
+
+
+def _max_relative(a, b) -> float:
+    pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    return max(float(jnp.max(jnp.abs(x - y)) / (jnp.max(jnp.abs(x)) + 1e-12)) for x, y in pairs)
+
+
+def test_fp32_values_and_gradients_match_the_modules(nets):
+    actor, critic, actor_params, critic_params, obs, action = nets
+
+    def q_loss(apply):
+        return lambda p, a: jnp.sum(apply(p, obs, a) ** 2)
+
+    def pi_loss(apply):
+        return lambda p: jnp.sum(apply(p, obs) ** 2)
+
+    q_mod, q_gemm = critic.apply, gemm_layers.critic_apply
+    assert (
+        _max_relative(q_mod(critic_params, obs, action), q_gemm(critic_params, obs, action)) < 1e-5
+    )
+    grads_mod = jax.grad(q_loss(q_mod), argnums=(0, 1))(critic_params, action)
+    grads_gemm = jax.grad(q_loss(q_gemm), argnums=(0, 1))(critic_params, action)
+    assert jax.tree.structure(grads_mod) == jax.tree.structure(grads_gemm)
+    assert _max_relative(grads_mod, grads_gemm) < 1e-5  # θ and ∇_a Q
+    pi_mod, pi_gemm = actor.apply, gemm_layers.actor_apply
+    assert _max_relative(pi_mod(actor_params, obs), pi_gemm(actor_params, obs)) < 1e-5
+    assert (
+        _max_relative(
+            jax.grad(pi_loss(pi_mod))(actor_params), jax.grad(pi_loss(pi_gemm))(actor_params)
+        )
+        < 1e-5
+    )
+
+
+def test_bf16_is_as_close_to_fp32_as_the_modules_bf16(nets):
+    actor, critic, actor_params, critic_params, obs, action = nets
+    q32 = critic.apply(critic_params, obs, action)
+    q_mod = networks.Critic(30, (20, 12), dtype=jnp.bfloat16).apply(critic_params, obs, action)
+    q_gemm = gemm_layers.critic_apply(critic_params, obs, action, jnp.bfloat16)
+    scale = float(jnp.max(jnp.abs(q32)))
+    assert (
+        float(jnp.max(jnp.abs(q_gemm - q32)))
+        <= 2 * float(jnp.max(jnp.abs(q_mod - q32))) + 0.01 * scale
+    )
+    a32 = actor.apply(actor_params, obs)
+    a_gemm = gemm_layers.actor_apply(actor_params, obs, jnp.bfloat16)
+    assert float(jnp.max(jnp.abs(a_gemm - a32))) < 0.05
+
+
+def test_the_augmented_matrix_holds_kernel_bias_and_the_ones_column():
+    kernel = jnp.arange(6.0).reshape(3, 2) + 1
+    bias = jnp.asarray([7.0, 8.0])
+    m = gemm_layers.layer_matrix([(kernel, 0)], bias, 8, jnp.float32)
+    expected = np.zeros((8, 8))
+    expected[:3, :2], expected[3, :2], expected[3, 2] = kernel, bias, 1.0
+    np.testing.assert_array_equal(m, expected)
+    x = jnp.asarray([[1.0, -2.0, 0.5]])
+    y = gemm_layers.hidden(gemm_layers.with_ones(x, jnp.float32), kernel, bias, jnp.float32)
+    np.testing.assert_allclose(y[0, :2], jax.nn.relu(x @ kernel + bias)[0], rtol=1e-6)
+    np.testing.assert_array_equal(y[0, 2:], [1.0, 0, 0, 0, 0, 0])  # ones column, padding
+
+
+def test_relu_gradient_is_the_modules_relu_gradient():
+    x = jnp.asarray([-1.0, 0.0, 2.0, -0.0, 3.5])
+    g = jax.grad(lambda v: jnp.sum(gemm_layers.relu(v) * jnp.arange(5.0)))(x)
+    np.testing.assert_array_equal(
+        g, jax.grad(lambda v: jnp.sum(jax.nn.relu(v) * jnp.arange(5.0)))(x)
+    )
+
+
+def test_every_gemm_width_is_aligned_at_the_paper_sizes():
+    cfg = parse_agent("ATD3+AfDP")
+    critic = networks.make_critic(cfg)
+    params = jax.eval_shape(
+        lambda k: critic.init(k, jnp.zeros((1, 20)), jnp.zeros((1, 2))), jax.random.key(0)
+    )
+    obs, action = jnp.zeros((1000, 20)), jnp.zeros((1000, 2))
+    jaxpr = jax.make_jaxpr(gemm_layers.critic_apply)(params, obs, action)
+    dots = [e for e in jaxpr.eqns if e.primitive.name == "dot_general"]
+    shapes = [tuple(e.invars[1].aval.shape) for e in dots]
+    assert shapes[:3] == [(24, 1008), (1008, 504), (504, 608)]  # 22 → 1004 → 500 → 600, padded
+    assert all(k % gemm_layers.ALIGN == 0 for k, _ in shapes)
+
+
+def test_a_learner_on_gemm_layers_takes_the_modules_updates():
+    cfg = parse_agent("ATD3+AfDP", **SMALL)
+    replay = fill_replay(cfg.buffer_size, jax.random.key(1))
+    states = {}
+    for name, layout in (("modules", networks.MODULES), ("gemm", networks.Layout(True, True))):
+        learner = make_learner(cfg, layout=layout)
+        state, update = learner.init(jax.random.key(0)), jax.jit(learner.update)
+        for u in range(cfg.delay + 1):  # critic steps and one actor step
+            keys = jax.random.split(jax.random.key(10 + u))
+            state, metrics, nonfinite = update(state, replay, keys[0], keys[1], HParams(), u)
+            assert not bool(nonfinite)
+        states[name] = state
+    assert _max_relative(states["modules"].critic, states["gemm"].critic) < 1e-4
+    assert _max_relative(states["modules"].actor, states["gemm"].actor) < 1e-4
+
+
+def test_gpus_get_the_layout_and_cpus_the_modules():
+    assert network_layout("gpu") == networks.Layout(inputs_per_critic=True, layers_in_gemm=True)
+    assert network_layout("cpu") == networks.MODULES
