@@ -1,0 +1,95 @@
+"""Do two runs of the same settings, trained by two versions of the program, learn the same?
+
+``advisor-jax report --versus NAME`` pairs points that differ in one setting. A change to how
+the program computes (a faster layout of the networks, another compiled program) changes no
+setting, so its check is this: a CONTROL run and a TREATMENT run of the same agent, settings,
+seeds and evaluation episodes, each loaded as ``advisor-jax report`` loads runs (one point
+each, on the evaluation both share), and TREATMENT − CONTROL in success, seed by seed, per
+arena, with the 95 % t interval of the mean difference (``stats.paired_difference``).
+
+    python experiments/paired_runs.py results/table1_stable/run_data/ATD3_AfDP \\
+        results/precision_study/run_data/atd3_afdp_stable_gemm_layers_fp32 \\
+        --out results/precision_study/gemm_layers_fp32
+
+Writes ``paired.md`` and ``paired.json`` into ``--out``; refuses runs whose settings,
+seeds or evaluation episodes differ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from advisor_jax.analysis.items.base import ARENAS
+from advisor_jax.analysis.runs import Point, load_runs, pool
+from advisor_jax.bench import writing
+from advisor_jax.fileio import atomic_write_json
+from advisor_jax.stats import format_interval, paired_difference, t_interval
+
+
+def the_point(path: Path, eval_seed: int | None) -> Point:
+    """The one point (agent, settings, final budget) of the runs below ``path``."""
+    points, _ = pool(load_runs([path], eval_seed))
+    final = [p for p in points if not p.snapshot]
+    if len(final) != 1:
+        raise ValueError(f"{path}: {len(final)} points, expected one run of one setting")
+    return final[0]
+
+
+def compare(control: Point, treatment: Point) -> dict:
+    """Per arena: both sides' mean ± interval and the paired difference (points of success)."""
+    if (control.agent, control.settings) != (treatment.agent, treatment.settings):
+        raise ValueError("the runs differ in agent or settings; use advisor-jax report --versus")
+    if sorted(control.seeds) != sorted(treatment.seeds):
+        raise ValueError(f"different seeds: {sorted(control.seeds)} / {sorted(treatment.seeds)}")
+    rows = {}
+    for arena in ARENAS:
+        c, t = control.scores(arena), treatment.scores(arena)
+        if any(v is None for v in (*c.values(), *t.values())):
+            continue
+        paired = paired_difference(t, c)
+        rows[arena] = dict(
+            control=format_interval(t_interval(list(c.values())), 100),
+            treatment=format_interval(t_interval(list(t.values())), 100),
+            difference=format_interval(paired.interval, 100),
+            verdict=paired.verdict,
+            differences=paired.differences,
+            seeds=paired.seeds,
+        )
+    return rows
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("control", type=Path)
+    parser.add_argument("treatment", type=Path)
+    parser.add_argument("--eval-seed", type=int, default=None)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    control = the_point(args.control, args.eval_seed)
+    treatment = the_point(args.treatment, args.eval_seed)
+    rows = compare(control, treatment)
+    args.out.mkdir(parents=True, exist_ok=True)
+    record = dict(control=str(args.control), treatment=str(args.treatment), arenas=rows)
+    atomic_write_json(args.out / "paired.json", dict(agent=control.agent, **record))
+    table = "\n".join(writing.markdown_table(
+        ("arena", "control success (%)", "treatment success (%)", "treatment − control", "verdict"),
+        [(a, r["control"], r["treatment"], r["difference"], r["verdict"]) for a, r in rows.items()],
+        align="l",
+    ))  # fmt: skip
+    given = sys.argv[1:] if argv is None else argv
+    command = writing.command_line("experiments/paired_runs.py", given)
+    text = (
+        f"# {control.agent}: {args.treatment} against {args.control}\n\n"
+        f"Same agent, settings, {len(control.seeds)} seeds and evaluation episodes; success, "
+        "mean ± 95 % interval; the difference paired by seed.\n\n"
+        f"{table}\n\nCommand: `{command}`\n"
+    )
+    (args.out / "paired.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

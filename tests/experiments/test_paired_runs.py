@@ -1,0 +1,49 @@
+"""experiments/paired_runs.py: two runs of one setting, paired by seed, from kept run data."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from tests.experiments.scripts import load_script
+
+paired_runs = load_script("paired_runs")
+RESULTS = paired_runs.Path(__file__).resolve().parents[2] / "results"
+CONTROL = RESULTS / "table1_stable/run_data/ATD3_AfDP"
+OTHER_AGENT = RESULTS / "table1_stable/run_data/DDPG"
+
+
+def _success(run_dir, arena):
+    summary = json.loads((run_dir / "run.json").read_text())
+    seeds = [row["seed"] for row in summary["agents"]]
+    return dict(zip(seeds, summary["evaluation"][arena]["success"], strict=True))
+
+
+def test_the_difference_is_treatment_minus_control_seed_by_seed(tmp_path):
+    # A treatment whose every seed succeeds 0.25 more often in the training arena than the
+    # control and 0.1 less often in the validation arena.
+    treatment = tmp_path / "treatment"
+    shutil.copytree(CONTROL, treatment)
+    summary = json.loads((treatment / "run.json").read_text())
+    for arena, shift in (("training", 0.25), ("validation", -0.1)):
+        summary["evaluation"][arena]["success"] = [
+            s + shift for s in summary["evaluation"][arena]["success"]
+        ]
+    (treatment / "run.json").write_text(json.dumps(summary))
+
+    out = tmp_path / "out"
+    assert paired_runs.main([str(CONTROL), str(treatment), "--out", str(out)]) == 0
+    record = json.loads((out / "paired.json").read_text())
+    training, validation = record["arenas"]["training"], record["arenas"]["validation"]
+    assert np.allclose(training["differences"], 0.25) and training["verdict"] == "holds"
+    assert np.allclose(validation["differences"], -0.1) and validation["verdict"] == "reversed"
+    assert training["seeds"] == sorted(_success(CONTROL, "training"))
+    assert "experiments/paired_runs.py" in (out / "paired.md").read_text()
+
+
+def test_runs_of_different_agents_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="agent or settings"):
+        paired_runs.main([str(CONTROL), str(OTHER_AGENT), "--out", str(tmp_path)])
