@@ -9,6 +9,8 @@ takes the same updates as one computing with the modules. GPUs get the layout, C
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -37,8 +39,9 @@ def _with_biases(params, key):
 def nets():
     actor, critic = networks.Actor(hidden=(24, 12)), networks.Critic(30, (20, 12))
     k_a, k_c, k_o, k_u = jax.random.split(jax.random.key(3), 4)
-    actor_params = _with_biases(networks.init_actor(actor, k_a), k_a)
-    critic_params = _with_biases(critic.init(k_c, jnp.zeros((1, 20)), jnp.zeros((1, 2))), k_c)
+    actor_params = _with_biases(jax.jit(partial(networks.init_actor, actor))(k_a), k_a)
+    init_critic = jax.jit(lambda k: critic.init(k, jnp.zeros((1, 20)), jnp.zeros((1, 2))))
+    critic_params = _with_biases(init_critic(k_c), k_c)
     obs = jax.random.normal(k_o, (BATCH, spec.OBS_SIZE))
     action = jax.random.uniform(k_u, (BATCH, spec.ACTION_SIZE), minval=-1.0)
     return actor, critic, actor_params, critic_params, obs, action
@@ -58,19 +61,20 @@ def test_fp32_values_and_gradients_match_the_modules(nets):
     def pi_loss(apply):
         return lambda p: jnp.sum(apply(p, obs) ** 2)
 
-    q_mod, q_gemm = critic.apply, gemm_layers.critic_apply
+    q_mod, q_gemm = jax.jit(critic.apply), jax.jit(gemm_layers.critic_apply)
     assert (
         _max_relative(q_mod(critic_params, obs, action), q_gemm(critic_params, obs, action)) < 1e-5
     )
-    grads_mod = jax.grad(q_loss(q_mod), argnums=(0, 1))(critic_params, action)
-    grads_gemm = jax.grad(q_loss(q_gemm), argnums=(0, 1))(critic_params, action)
+    grads_mod = jax.jit(jax.grad(q_loss(q_mod), argnums=(0, 1)))(critic_params, action)
+    grads_gemm = jax.jit(jax.grad(q_loss(q_gemm), argnums=(0, 1)))(critic_params, action)
     assert jax.tree.structure(grads_mod) == jax.tree.structure(grads_gemm)
     assert _max_relative(grads_mod, grads_gemm) < 1e-5  # θ and ∇_a Q
-    pi_mod, pi_gemm = actor.apply, gemm_layers.actor_apply
+    pi_mod, pi_gemm = jax.jit(actor.apply), jax.jit(gemm_layers.actor_apply)
     assert _max_relative(pi_mod(actor_params, obs), pi_gemm(actor_params, obs)) < 1e-5
     assert (
         _max_relative(
-            jax.grad(pi_loss(pi_mod))(actor_params), jax.grad(pi_loss(pi_gemm))(actor_params)
+            jax.jit(jax.grad(pi_loss(pi_mod)))(actor_params),
+            jax.jit(jax.grad(pi_loss(pi_gemm)))(actor_params),
         )
         < 1e-5
     )
@@ -79,15 +83,17 @@ def test_fp32_values_and_gradients_match_the_modules(nets):
 def test_bf16_is_as_close_to_fp32_as_the_modules_bf16(nets):
     actor, critic, actor_params, critic_params, obs, action = nets
     q32 = critic.apply(critic_params, obs, action)
-    q_mod = networks.Critic(30, (20, 12), dtype=jnp.bfloat16).apply(critic_params, obs, action)
-    q_gemm = gemm_layers.critic_apply(critic_params, obs, action, jnp.bfloat16)
+    q_mod = jax.jit(networks.Critic(30, (20, 12), dtype=jnp.bfloat16).apply)
+    q_mod = q_mod(critic_params, obs, action)
+    q_gemm = jax.jit(partial(gemm_layers.critic_apply, dtype=jnp.bfloat16))
+    q_gemm = q_gemm(critic_params, obs, action)
     scale = float(jnp.max(jnp.abs(q32)))
     assert (
         float(jnp.max(jnp.abs(q_gemm - q32)))
         <= 2 * float(jnp.max(jnp.abs(q_mod - q32))) + 0.01 * scale
     )
     a32 = actor.apply(actor_params, obs)
-    a_gemm = gemm_layers.actor_apply(actor_params, obs, jnp.bfloat16)
+    a_gemm = jax.jit(partial(gemm_layers.actor_apply, dtype=jnp.bfloat16))(actor_params, obs)
     assert float(jnp.max(jnp.abs(a_gemm - a32))) < 0.05
 
 
@@ -127,7 +133,8 @@ def test_every_gemm_width_is_aligned_at_the_paper_sizes():
 
 
 def test_a_learner_on_gemm_layers_takes_the_modules_updates():
-    cfg = parse_agent("ATD3+AfDP", **SMALL)
+    sizes = dict(actor_hidden=(16, 16), critic_state_hidden=24, critic_hidden=(16, 16))
+    cfg = parse_agent("ATD3+AfDP", **{**SMALL, **sizes, "batch_size": 32, "buffer_size": 256})
     replay = fill_replay(cfg.buffer_size, jax.random.key(1))
     states = {}
     for name, layout in (("modules", networks.MODULES), ("gemm", networks.Layout(True, True))):
