@@ -11,6 +11,15 @@ import numpy as np
 PARAM_REL, MOMENT_REL = 1e-2, 1e-1
 
 
+def max_relative_difference(a, b) -> float:
+    """The largest |a - b| of two pytrees' leaves, each relative to its leaf's largest |a|."""
+    return max(
+        float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64))))
+        / max(float(np.max(np.abs(np.asarray(x, np.float64)))), 1e-30)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
+
+
 def assert_same_training(got, want, start, what: str) -> None:
     """``got`` and ``want`` are the same agent trained along two code paths from ``start``.
 

@@ -22,6 +22,7 @@ from advisor_jax.agent.learner import make_learner
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
 from advisor_jax.contract import spec
 from advisor_jax.training.program import network_layout
+from tests.compare import max_relative_difference
 
 BATCH = 16
 
@@ -47,11 +48,6 @@ def nets():
     return actor, critic, actor_params, critic_params, obs, action
 
 
-def _max_relative(a, b) -> float:
-    pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
-    return max(float(jnp.max(jnp.abs(x - y)) / (jnp.max(jnp.abs(x)) + 1e-12)) for x, y in pairs)
-
-
 def test_fp32_values_and_gradients_match_the_modules(nets):
     actor, critic, actor_params, critic_params, obs, action = nets
 
@@ -62,17 +58,16 @@ def test_fp32_values_and_gradients_match_the_modules(nets):
         return lambda p: jnp.sum(apply(p, obs) ** 2)
 
     q_mod, q_gemm = jax.jit(critic.apply), jax.jit(gemm_layers.critic_apply)
-    assert (
-        _max_relative(q_mod(critic_params, obs, action), q_gemm(critic_params, obs, action)) < 1e-5
-    )
+    q_both = q_mod(critic_params, obs, action), q_gemm(critic_params, obs, action)
+    assert max_relative_difference(*q_both) < 1e-5
     grads_mod = jax.jit(jax.grad(q_loss(q_mod), argnums=(0, 1)))(critic_params, action)
     grads_gemm = jax.jit(jax.grad(q_loss(q_gemm), argnums=(0, 1)))(critic_params, action)
     assert jax.tree.structure(grads_mod) == jax.tree.structure(grads_gemm)
-    assert _max_relative(grads_mod, grads_gemm) < 1e-5  # θ and ∇_a Q
+    assert max_relative_difference(grads_mod, grads_gemm) < 1e-5  # θ and ∇_a Q
     pi_mod, pi_gemm = jax.jit(actor.apply), jax.jit(gemm_layers.actor_apply)
-    assert _max_relative(pi_mod(actor_params, obs), pi_gemm(actor_params, obs)) < 1e-5
+    assert max_relative_difference(pi_mod(actor_params, obs), pi_gemm(actor_params, obs)) < 1e-5
     assert (
-        _max_relative(
+        max_relative_difference(
             jax.jit(jax.grad(pi_loss(pi_mod)))(actor_params),
             jax.jit(jax.grad(pi_loss(pi_gemm)))(actor_params),
         )
@@ -145,8 +140,8 @@ def test_a_learner_on_gemm_layers_takes_the_modules_updates():
             state, metrics, nonfinite = update(state, replay, keys[0], keys[1], HParams(), u)
             assert not bool(nonfinite)
         states[name] = state
-    assert _max_relative(states["modules"].critic, states["gemm"].critic) < 1e-4
-    assert _max_relative(states["modules"].actor, states["gemm"].actor) < 1e-4
+    assert max_relative_difference(states["modules"].critic, states["gemm"].critic) < 1e-4
+    assert max_relative_difference(states["modules"].actor, states["gemm"].actor) < 1e-4
 
 
 def test_gpus_get_the_layout_and_cpus_the_modules():

@@ -22,6 +22,7 @@ from advisor_jax.agent import networks
 from advisor_jax.contract import spec
 from advisor_jax.training.program import twin_inputs_per_critic
 from tests.agent.conftest import SMALL
+from tests.compare import max_relative_difference
 
 CFG = SimpleNamespace(
     critic_state_hidden=SMALL["critic_state_hidden"], critic_hidden=SMALL["critic_hidden"]
@@ -55,14 +56,6 @@ def _q_and_grads(critic, params, obs, action, inputs_per_critic):
     return jax.jit(jax.vmap(one_agent))(params, obs, action)
 
 
-def _max_relative_difference(a, b) -> float:
-    return max(
-        float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64))))
-        / max(float(np.max(np.abs(np.asarray(x, np.float64)))), 1e-30)
-        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
-    )
-
-
 @pytest.mark.parametrize(("precision", "bound"), [("fp32", 1e-5), ("bf16", 2e-2)])
 def test_per_critic_inputs_compute_the_same_q_and_gradients(precision, bound):
     critic, params, obs, action = _population(precision)
@@ -71,7 +64,7 @@ def test_per_critic_inputs_compute_the_same_q_and_gradients(precision, bound):
     assert jax.tree.structure(shared) == jax.tree.structure(per_critic)
     # Bounds relative to each array's largest entry: the summation order of a GEMM (and
     # with it the last bits) differs between the layouts and between CPUs.
-    assert _max_relative_difference(shared, per_critic) < bound
+    assert max_relative_difference(shared, per_critic) < bound
 
 
 def test_the_cpu_default_is_the_shared_layout_bit_for_bit():
