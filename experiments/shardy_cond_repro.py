@@ -14,9 +14,10 @@ collectives inside the loop (``training.collectives``); exit status 1 if there a
     python experiments/shardy_cond_repro.py --platform gpu        # the GPUs JAX sees
     JAX_USE_SHARDY_PARTITIONER=false python experiments/shardy_cond_repro.py --platform gpu
 
-Whether it reproduces the training chunk's all-gathers on GPUs is not yet known (it was
-written without a GPU at hand): if it does, it is the report for upstream; if it does not,
-the trigger is in what the chunk has and it lacks.
+It does not reproduce the training chunk's all-gathers: on two H200s (jax 0.11.2,
+2026-11-27) it has no collective under either partitioner
+(results/bench_multigpu/shardy_cond_repro_h200x2.log), so the trigger is in what the chunk
+has and this program lacks.
 """
 
 from __future__ import annotations
