@@ -111,12 +111,18 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     """Seconds per agent-iteration of each piece of an update, vmapped over ``n_agents``."""
     import optax
 
-    from advisor_jax.agent.networks import apply_critics, learner_functions
+    from advisor_jax.agent.networks import (
+        apply_critics,
+        learner_functions,
+        make_actor,
+        make_critic,
+    )
 
     layout = network_layout()
     learner = make_learner(cfg, layout=layout)
     hp = HParams()
-    critic_apply = learner_functions(cfg, layout)[1]
+    actor, critic = make_actor(cfg.actor_hidden, cfg.precision), make_critic(cfg, cfg.precision)
+    critic_apply = learner_functions(actor, critic, layout)[1]
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
     states = jax.jit(jax.vmap(learner.init))(keys)
     replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(

@@ -167,7 +167,7 @@ def make_learner(
     critic = make_critic(cfg, cfg.precision)
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
     per_critic = layout.inputs_per_critic
-    actor_apply, critic_apply = learner_functions(cfg, layout)
+    actor_apply, critic_apply = learner_functions(actor, critic, layout)
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)

@@ -160,17 +160,15 @@ def make_critic(cfg, precision: str = "fp32") -> Critic:
     )
 
 
-def learner_functions(cfg, layout: Layout) -> tuple[Callable, Callable]:
-    """(actor apply, critic apply) of the learner's networks at ``cfg``'s (an
-    ``AgentConfig``'s) widths and precision: the modules' ``apply``, or with
-    ``layout.layers_in_gemm`` the same functions as ``gemm_layers`` computes them."""
-    actor, critic = make_actor(cfg.actor_hidden, cfg.precision), make_critic(cfg, cfg.precision)
+def learner_functions(actor: Actor, critic: Critic, layout: Layout) -> tuple[Callable, Callable]:
+    """(actor apply, critic apply) of the learner's networks ``actor`` and ``critic``: the
+    modules' ``apply``, or with ``layout.layers_in_gemm`` the same functions as
+    ``gemm_layers`` computes them at the modules' precision."""
     if not layout.layers_in_gemm:
         return actor.apply, critic.apply
-    dtype = PRECISIONS[cfg.precision]
     return (
-        partial(gemm_layers.actor_apply, dtype=dtype),
-        partial(gemm_layers.critic_apply, dtype=dtype),
+        partial(gemm_layers.actor_apply, dtype=actor.dtype),
+        partial(gemm_layers.critic_apply, dtype=critic.dtype),
     )
 
 
