@@ -122,7 +122,7 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     learner = make_learner(cfg, layout=layout)
     hp = HParams()
     actor, critic = make_actor(cfg.actor_hidden, cfg.precision), make_critic(cfg, cfg.precision)
-    critic_apply = learner_functions(actor, critic, layout)[1]
+    critic_apply = learner_functions(actor, critic, layout)[1].apply
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
     states = jax.jit(jax.vmap(learner.init))(keys)
     replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(

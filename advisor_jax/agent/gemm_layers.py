@@ -115,28 +115,46 @@ def _dot(x: jax.Array, matrix: jax.Array) -> jax.Array:
     return jax.lax.dot_general(x, matrix, (((x.ndim - 1,), (0,)), ((), ())))
 
 
-def hidden(x: jax.Array, blocks, bias: jax.Array, dtype: Any) -> jax.Array:
-    """One hidden layer on an augmented input: ``relu([x, 1, 0…] @ layer_matrix(blocks, bias))``;
-    ``blocks``: a kernel ``[k, n]``, or ``(block, first column)`` pairs (``layer_matrix``)."""
-    blocks = [(blocks, 0)] if isinstance(blocks, jax.Array) else blocks
-    return relu(_dot(x, layer_matrix(blocks, bias, x.shape[-1], dtype)))
+def _hidden(x: jax.Array, matrix: jax.Array) -> jax.Array:
+    """One hidden layer on an augmented input with its augmented matrix: ``relu(x @ matrix)``."""
+    return relu(_dot(x, matrix))
 
 
-def head(x: jax.Array, dense: dict) -> jax.Array:
+def _head(x: jax.Array, matrix: jax.Array) -> jax.Array:
     """The fp32 output head (``nn.Dense`` at fp32) on an augmented input."""
-    x = x.astype(jnp.float32)
-    return _dot(x, head_matrix(dense["kernel"], dense["bias"], x.shape[-1]))
+    return _dot(x.astype(jnp.float32), matrix)
+
+
+def _head_matrix(dense: dict, k_in: int) -> jax.Array:
+    return head_matrix(dense["kernel"], dense["bias"], k_in)
+
+
+def actor_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
+    """The actor's augmented matrices in ``dtype`` (hidden layers) and fp32 (the head):
+    what ``actor_forward`` multiplies by; a function of the parameters alone, so a caller
+    may build them once for several passes (``agent.learner``'s target networks)."""
+    p = params["params"]
+    n_hidden = sum(name.startswith("hidden_") for name in p)
+    k_in, matrices = padded(p["hidden_0"]["kernel"].shape[0] + 1), []
+    for i in range(n_hidden):
+        layer = p[f"hidden_{i}"]
+        matrices.append(layer_matrix([(layer["kernel"], 0)], layer["bias"], k_in, dtype))
+        k_in = matrices[-1].shape[1]
+    return [*matrices, _head_matrix(p["head"], k_in)]
+
+
+def actor_forward(matrices: list[jax.Array], obs: jax.Array) -> jax.Array:
+    """π(s; φ) → (V, ω) from ``actor_matrices``."""
+    x = with_ones(obs, matrices[0].dtype)
+    for matrix in matrices[:-1]:
+        x = _hidden(x, matrix)
+    logits = _head(x, matrices[-1])
+    return jnp.stack([jax.nn.sigmoid(logits[..., 0]), jnp.tanh(logits[..., 1])], axis=-1)
 
 
 def actor_apply(params: Any, obs: jax.Array, dtype: Any = jnp.float32) -> jax.Array:
     """``networks.Actor(dtype=dtype).apply(params, obs)``: π(s; φ) → (V, ω)."""
-    p = params["params"]
-    x = with_ones(obs, dtype)
-    n_hidden = sum(name.startswith("hidden_") for name in p)
-    for i in range(n_hidden):
-        x = hidden(x, p[f"hidden_{i}"]["kernel"], p[f"hidden_{i}"]["bias"], dtype)
-    logits = head(x, p["head"])
-    return jnp.stack([jax.nn.sigmoid(logits[..., 0]), jnp.tanh(logits[..., 1])], axis=-1)
+    return actor_forward(actor_matrices(params, dtype), obs)
 
 
 def _pass_on_signs(n: int, dtype: Any) -> jax.Array:
@@ -144,25 +162,43 @@ def _pass_on_signs(n: int, dtype: Any) -> jax.Array:
     return jnp.kron(jnp.eye(n, dtype=dtype), jnp.asarray([[1.0, -1.0]], dtype))
 
 
+def critic_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
+    """The critic's augmented matrices in ``dtype`` (hidden layers) and fp32 (the head), as
+    ``actor_matrices``. The first layer passes the action on as ``relu(±a)``; the join
+    layer holds ``K_a`` against ``relu(a)`` and ``-K_a`` against ``relu(-a)`` (module
+    docstring). Its leaves may carry a leading critic axis under ``jax.vmap``."""
+    p = params["params"]
+    state = p["state"]
+    n_in, width = state["kernel"].shape
+    join = p["hidden_0"]
+    k_a = join["kernel"]["action"]  # [n_act, out]
+    n_act = k_a.shape[0]
+    # [[K_s, 0], [0, ±1]]: the state layer, and the action passed on
+    first = [(state["kernel"], 0), (_pass_on_signs(n_act, state["kernel"].dtype), width)]
+    first_bias = jnp.pad(state["bias"], (0, 2 * n_act))
+    matrices = [layer_matrix(first, first_bias, padded(n_in + n_act + 1), dtype)]
+    signed = jnp.stack([k_a, -k_a], axis=1).reshape(2 * n_act, -1)  # against relu(+a), relu(-a)
+    blocks = [(join["kernel"]["state"], 0), (signed, 0)]
+    matrices.append(layer_matrix(blocks, join["bias"], matrices[-1].shape[1], dtype))
+    i = 1
+    while f"hidden_{i}" in p:
+        layer = p[f"hidden_{i}"]
+        k_in = matrices[-1].shape[1]
+        matrices.append(layer_matrix([(layer["kernel"], 0)], layer["bias"], k_in, dtype))
+        i += 1
+    return [*matrices, _head_matrix(p["q"], matrices[-1].shape[1])]
+
+
+def critic_forward(matrices: list[jax.Array], obs: jax.Array, action: jax.Array) -> jax.Array:
+    """Q(s, a; θ) from ``critic_matrices``."""
+    x = with_ones(jnp.concatenate([obs, action.astype(obs.dtype)], axis=-1), matrices[0].dtype)
+    for matrix in matrices[:-1]:
+        x = _hidden(x, matrix)  # after the first: [h, relu(±a), 1, 0…]
+    return _head(x, matrices[-1])[..., 0]
+
+
 def critic_apply(
     params: Any, obs: jax.Array, action: jax.Array, dtype: Any = jnp.float32
 ) -> jax.Array:
     """``networks.Critic(dtype=dtype).apply(params, obs, action)``: Q(s, a; θ)."""
-    p = params["params"]
-    n_act = action.shape[-1]
-    x = with_ones(jnp.concatenate([obs, action.astype(obs.dtype)], axis=-1), dtype)
-    state = p["state"]
-    width = state["kernel"].shape[-1]
-    # [[K_s, 0], [0, ±1]]: the state layer, and the action passed on
-    first = [(state["kernel"], 0), (_pass_on_signs(n_act, state["kernel"].dtype), width)]
-    first_bias = jnp.pad(state["bias"], (0, 2 * n_act))
-    x = hidden(x, first, first_bias, dtype)  # [h, relu(±a), 1, 0…]
-    join = p["hidden_0"]
-    k_a = join["kernel"]["action"]  # [n_act, out]
-    signed = jnp.stack([k_a, -k_a], axis=1).reshape(2 * n_act, -1)  # against relu(+a), relu(-a)
-    x = hidden(x, [(join["kernel"]["state"], 0), (signed, 0)], join["bias"], dtype)
-    i = 1
-    while f"hidden_{i}" in p:
-        x = hidden(x, p[f"hidden_{i}"]["kernel"], p[f"hidden_{i}"]["bias"], dtype)
-        i += 1
-    return head(x, p["q"])[..., 0]
+    return critic_forward(critic_matrices(params, dtype), obs, action)

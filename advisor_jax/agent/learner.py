@@ -105,6 +105,13 @@ class LearnerState:
     critic_opt: Any  # optax Adam state of θ
     critic_updates: jax.Array  # int32, t of Alg. A3
     actor_updates: jax.Array  # int32
+    target_nets: Any = None
+    """(target actor, target critics) as the learner's networks compute them
+    (``networks.NetworkFunctions.build``: ``gemm_layers``' augmented matrices), built once per
+    soft update instead of once per critic step. Held only inside a training chunk
+    (``Learner.hold_targets`` at its start, ``drop_targets`` at its end), so that a stored
+    state (a chunk's input and output, a checkpoint) is the same whatever the device; None
+    there, and where the flax modules compute (whose build is the parameters themselves)."""
 
 
 class Learner(NamedTuple):
@@ -128,6 +135,12 @@ class Learner(NamedTuple):
     update_critic_only: Callable[..., tuple[Any, Metrics, jax.Array]]
     """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
     that skips it, with no conditional."""
+    hold_targets: Callable[[LearnerState], LearnerState]
+    """(state) -> the state holding its target networks built (``LearnerState.target_nets``;
+    unchanged where the flax modules compute): the critic steps that follow read them, and
+    every soft update builds them again. The same updates, bit for bit."""
+    drop_targets: Callable[[LearnerState], LearnerState]
+    """(state) -> the state without them (``target_nets`` None), as it is stored."""
 
 
 def _adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
@@ -158,8 +171,9 @@ def make_learner(
     learner's networks run as ``gemm_layers`` (each hidden layer one GEMM with its bias
     inside) instead of the flax modules; acting (the Eq. 1 selector's Q) keeps the modules.
 
-    Long: the factory of the learner's closures (init, selector Q, the two steps and the
-    three whole updates), which share its networks and settings; each is short.
+    Long: the factory of the learner's closures (init, selector Q, the two steps, the
+    three whole updates and the held targets), which share its networks and settings; each
+    is short.
     """
     if not isinstance(cfg, AgentConfig):
         raise TypeError(f"make_learner needs an AgentConfig, got {type(cfg).__name__}")
@@ -167,7 +181,16 @@ def make_learner(
     critic = make_critic(cfg, cfg.precision)
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
     per_critic = layout.inputs_per_critic
-    actor_apply, critic_apply = learner_functions(actor, critic, layout)
+    actor_net, critic_net = learner_functions(actor, critic, layout)
+
+    def build_targets(state: LearnerState) -> tuple[Any, Any]:
+        return actor_net.build(state.target_actor), jax.vmap(critic_net.build)(state.target_critic)
+
+    def hold_targets(state: LearnerState) -> LearnerState:
+        return state.replace(target_nets=build_targets(state)) if layout.layers_in_gemm else state
+
+    def drop_targets(state: LearnerState) -> LearnerState:
+        return state.replace(target_nets=None)
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)
@@ -194,13 +217,15 @@ def make_learner(
     def critic_step(
         state: LearnerState, batch: Transition, key: jax.Array, hp: HParams
     ) -> tuple[LearnerState, Metrics]:
-        next_actions = actor_apply(state.target_actor, batch.next_obs)  # [n, 2]
+        held = state.target_nets is not None  # static: the state's structure
+        target_actor, target_critics = state.target_nets if held else build_targets(state)
+        next_actions = actor_net.forward(target_actor, batch.next_obs)  # [n, 2]
         if cfg.twin:
             next_actions = smoothed_target_actions(
                 key, next_actions, hp.target_noise, hp.target_noise_clip
             )
         next_q = apply_critics(
-            critic_apply, state.target_critic, batch.next_obs, next_actions, per_critic
+            critic_net.forward, target_critics, batch.next_obs, next_actions, per_critic
         )
         targets = critic_targets(batch.reward, batch.terminal, next_q, hp.gamma)  # [n]
         clipped = jnp.zeros((), jnp.float32)
@@ -211,7 +236,7 @@ def make_learner(
 
         def loss_fn(params):
             # [n_critics, n]
-            q = apply_critics(critic_apply, params, batch.obs, batch.action, per_critic)
+            q = apply_critics(critic_net.apply, params, batch.obs, batch.action, per_critic)
             losses = critic_losses(q, targets)
             return jnp.sum(losses), (losses, q)
 
@@ -237,10 +262,10 @@ def make_learner(
         q1_params = _first_critic(state.critic)
 
         def q1(obs, action):
-            return critic_apply(q1_params, obs, action)
+            return critic_net.apply(q1_params, obs, action)
 
         # One actor forward; the loss is differentiated w.r.t. the actions and pulled back.
-        actions, pullback = jax.vjp(lambda p: actor_apply(p, batch.obs), state.actor)
+        actions, pullback = jax.vjp(lambda p: actor_net.apply(p, batch.obs), state.actor)
         if cfg.advisor_target:
             targets = addpg_actor_targets(
                 q1,
@@ -273,6 +298,8 @@ def make_learner(
             target_critic=soft_update(state.target_critic, state.critic, hp.tau),
             actor_updates=state.actor_updates + 1,
         )
+        if state.target_nets is not None:
+            new_state = hold_targets(new_state)  # the soft update changed them
         metrics = {
             "loss/actor": loss,
             "advisor/replaced": jnp.mean(replaced.astype(jnp.float32)),
@@ -354,6 +381,8 @@ def make_learner(
         update=update,
         update_with_actor=update_with_actor,
         update_critic_only=update_critic_only,
+        hold_targets=hold_targets,
+        drop_targets=drop_targets,
     )
 
 

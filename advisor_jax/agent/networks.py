@@ -160,16 +160,37 @@ def make_critic(cfg, precision: str = "fp32") -> Critic:
     )
 
 
-def learner_functions(actor: Actor, critic: Critic, layout: Layout) -> tuple[Callable, Callable]:
-    """(actor apply, critic apply) of the learner's networks ``actor`` and ``critic``: the
+class NetworkFunctions(NamedTuple):
+    """How a learner computes one network: ``forward(build(params), *inputs)`` is the network's
+    ``apply(params, *inputs)``. ``build`` turns the parameters into what ``forward`` multiplies
+    by (``gemm_layers``' augmented matrices; the parameters themselves for the flax modules):
+    built once, it serves several passes (``agent.learner``'s target networks)."""
+
+    build: Callable
+    forward: Callable
+
+    def apply(self, params, *inputs):
+        return self.forward(self.build(params), *inputs)
+
+
+def _unchanged(params):
+    return params
+
+
+def learner_functions(
+    actor: Actor, critic: Critic, layout: Layout
+) -> tuple[NetworkFunctions, NetworkFunctions]:
+    """(actor, critic) functions of the learner's networks ``actor`` and ``critic``: the
     modules' ``apply``, or with ``layout.layers_in_gemm`` the same functions as
     ``gemm_layers`` computes them at the modules' precision."""
     if not layout.layers_in_gemm:
-        return actor.apply, critic.apply
+        return NetworkFunctions(_unchanged, actor.apply), NetworkFunctions(_unchanged, critic.apply)
     return (
-        partial(gemm_layers.actor_apply, dtype=actor.dtype),
-        partial(gemm_layers.critic_apply, dtype=critic.dtype),
-    )
+        NetworkFunctions(partial(gemm_layers.actor_matrices, dtype=actor.dtype),
+                         gemm_layers.actor_forward),
+        NetworkFunctions(partial(gemm_layers.critic_matrices, dtype=critic.dtype),
+                         gemm_layers.critic_forward),
+    )  # fmt: skip
 
 
 def count_params(params) -> int:

@@ -50,8 +50,11 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
         body, starts = (
             (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
         )
-        (learner_state, _), _ = jax.lax.scan(body, (learner_state, key), starts)
-        return learner_state
+        if not steady:  # as the general program holds them (program.holds_targets)
+            learner_state = learner.hold_targets(learner_state)
+        carry = (learner_state, key)
+        (learner_state, _), _ = jax.lax.scan(body, carry, starts)
+        return learner.drop_targets(learner_state)
 
     options = compiler_options(cfg.precision, overlap=steady, steady=steady)  # as training's
     return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)

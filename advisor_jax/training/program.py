@@ -13,7 +13,8 @@ leave open:
   agents per GPU);
 * how the learner's networks are computed (``network_layout``): the twin critics' input
   layout (``twin_inputs_per_critic``) and each hidden layer as one GEMM
-  (``layers_in_gemm``, ``agent/gemm_layers.py``);
+  (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
+  (``holds_targets``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
 
@@ -119,6 +120,16 @@ def network_layout(backend: str | None = None) -> Layout:
     return Layout(twin_inputs_per_critic(backend), layers_in_gemm(backend))
 
 
+def holds_targets(program: str) -> bool:
+    """Whether the chunk's ``program`` (one of ``PROGRAMS``) has its learner hold the target
+    networks built (``Learner.hold_targets``; only with ``layers_in_gemm``): once per soft
+    update instead of once per critic step, the same updates bit for bit. Every program but
+    the latency-bound one: one H100, jax 0.11.2, against the tree before in one command, the
+    64-agent bf16 step ran 1.05× (the 128-agent learner 1.04×), fp32 1.00×, and the 1-agent
+    bf16 step, the latency-bound program, 0.95× (``results/bench_held_targets/``)."""
+    return program != "latency-bound"
+
+
 PROGRAMS = ("general", "steady", "latency-bound")
 """The chunk's programs (``population_functions``' ``program``):
 
@@ -191,7 +202,7 @@ def population_functions(
     # written; tests/training/test_collectives.py injects one to show that its check of the
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
-        trainer = make_train(cfg, program != "general", layout)
+        trainer = make_train(cfg, program != "general", layout, holds_targets(program))
         chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
     else:  # LfD, MCP+MF: the gate from every agent but the padding ones, unbatched
         baseline = make_prior_program(cfg, layout)

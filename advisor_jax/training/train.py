@@ -282,12 +282,17 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
     )
 
 
-def make_train(cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES) -> Trainer:
+def make_train(
+    cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES, hold_targets: bool = True
+) -> Trainer:
     """The paper's agents' program (static config): the core's steps scanned into chunks.
 
     ``steady``: also compile the chunk's steady program, chosen per chunk (module
     docstring; ``program.latency_bound`` decides where it pays). It is only built where it
-    exists: one update per step or no delay, and chunks a whole number of delay periods."""
+    exists: one update per step or no delay, and chunks a whole number of delay periods.
+    ``hold_targets``: the learner holds its target networks built while a chunk runs
+    (``Learner.hold_targets``; only where ``layout`` computes with ``gemm_layers``): the same
+    updates, bit for bit; ``program.holds_targets`` decides where it pays."""
     core = make_core(cfg, layout)
     agent, learner = cfg.agent, core.learner
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
@@ -360,16 +365,21 @@ def make_train(cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES)
         return state, jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), metrics)
 
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
-        """`chunk_steps` environment steps; `first_step` is the global index of the first."""
+        """`chunk_steps` environment steps; `first_step` is the global index of the first.
+        With ``hold_targets`` the learner holds its target networks built while the chunk
+        runs; the state it returns, as the one it takes, does not."""
+        if hold_targets:
+            state = state.replace(learner=learner.hold_targets(state.learner))
         if not steady:
-            return general_chunk(state, hp, first_step)
-        # One conditional per chunk (its predicate is unbatched), none inside the steady loop.
-        return jax.lax.cond(
-            steady_at(first_step, n_envs, agent.warmup, agent.delay),
-            lambda s: steady_chunk(s, hp, first_step),
-            lambda s: general_chunk(s, hp, first_step),
-            state,
-        )
+            state, metrics = general_chunk(state, hp, first_step)
+        else:  # one conditional per chunk (its predicate is unbatched), none in the steady loop
+            state, metrics = jax.lax.cond(
+                steady_at(first_step, n_envs, agent.warmup, agent.delay),
+                lambda s: steady_chunk(s, hp, first_step),
+                lambda s: general_chunk(s, hp, first_step),
+                state,
+            )
+        return state.replace(learner=learner.drop_targets(state.learner)), metrics
 
     return Trainer(
         init=core.init, chunk=chunk, max_steps=core.max_steps, steady=steady, advisor=core.advisor

@@ -100,7 +100,7 @@ def test_the_augmented_matrix_holds_kernel_bias_and_the_ones_column():
     expected[:3, :2], expected[3, :2], expected[3, 2] = kernel, bias, 1.0
     np.testing.assert_array_equal(m, expected)
     x = jnp.asarray([[1.0, -2.0, 0.5]])
-    y = gemm_layers.hidden(gemm_layers.with_ones(x, jnp.float32), kernel, bias, jnp.float32)
+    y = gemm_layers.relu(gemm_layers.with_ones(x, jnp.float32) @ m)  # one hidden layer
     np.testing.assert_allclose(y[0, :2], jax.nn.relu(x @ kernel + bias)[0], rtol=1e-6)
     np.testing.assert_array_equal(y[0, 2:], [1.0, 0, 0, 0, 0, 0])  # ones column, padding
 

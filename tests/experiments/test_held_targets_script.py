@@ -1,0 +1,19 @@
+"""experiments/held_targets.py: the parity check and the chunk's memory, small, on the CPU."""
+
+from __future__ import annotations
+
+import json
+
+from tests.experiments.scripts import load_script
+
+held_targets = load_script("held_targets")
+
+
+def test_a_small_run_reports_parity_and_the_memory_the_hold_takes(tmp_path):
+    argv = ["--small", "--agents", "2", "--chunk", "8", "--updates", "5", "--precision", "bf16"]
+    assert held_targets.main([*argv, "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "held_targets.json").read_text())["rows"]
+    assert row["bit_for_bit"] and row["max_abs_difference"] == 0.0
+    memory = row["temp_mib_per_agent"]
+    assert memory["held"] > memory["built"]  # the held matrices live through the chunk
+    assert "| bf16 | True |" in (tmp_path / "held_targets.md").read_text()
