@@ -12,8 +12,8 @@ from rich.console import Console
 from rich.table import Table
 
 from advisor_jax.cli.helptext import flowing
+from advisor_jax.study import failures, plan_file, slurm, sweep, throughput
 from advisor_jax.study import plan as planning
-from advisor_jax.study import plan_file, slurm, sweep, throughput
 from advisor_jax.study.spec import StudyError, load_study
 
 
@@ -245,7 +245,7 @@ def _closing(console: Console, args: SweepArgs, jobs: list, result: dict) -> Non
         for what, which in (
             ("pieces failed twice", listed(sweep.FAILED)),
             (
-                f"pieces not started, every device having failed {sweep.RETIRE_AFTER} pieces "
+                f"pieces not started, every device having failed {failures.RETIRE_AFTER} pieces "
                 "in a row",
                 listed(sweep.STRANDED),
             ),

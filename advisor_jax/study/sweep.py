@@ -15,7 +15,7 @@ all, read from each piece's ``train_log.jsonl``; ``run_local`` is one study's.
 first), a fresh run otherwise. Pieces never talk to each other; DIR collects them.
 
 A failed piece is started once more, last and on another device where there is one; a
-device on which ``RETIRE_AFTER`` pieces failed in a row takes no more (``_Failures``).
+device on which ``RETIRE_AFTER`` pieces failed in a row takes no more (``Failures``).
 """
 
 from __future__ import annotations
@@ -34,13 +34,13 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.study.failures import Failures, device_name
 from advisor_jax.study.plan import Device, Piece, Plan
 from advisor_jax.study.spec import Study, StudyError
 
 FAILED = "failed"  # failed twice (started once more after its first failure)
 LEFT = "left"  # not started: predicted to end after --time-limit
 STRANDED = "stranded"  # not started: every device was taken out after failures in a row
-RETIRE_AFTER = 2  # pieces failed in a row on one device: it takes no more in this call
 
 
 def run_dir(out: Path, piece: Piece) -> Path:
@@ -234,7 +234,7 @@ def run_jobs(
     those in each DIR's timing.json from earlier calls with as many workers per device, or
     with none yet the workers per device, a shared GPU's slowdown at worst); pieces that
     fit nowhere are "left" for the next call; "stranded" where no device was left
-    (``_Failures``). Ctrl-C stops the workers (each checkpoints)."""
+    (``Failures``). Ctrl-C stops the workers (each checkpoints)."""
     console = console or Console(stderr=True)
     processes = {job.plan.device.processes for job in jobs}
     if len(processes) > 1:
@@ -250,7 +250,7 @@ def run_jobs(
     deadline = None if time_limit is None else time.monotonic() + time_limit
     kind = devices[0].kind if devices else None
     ratios = [r for job in jobs for r in kept_ratios(job.out, processes, kind)]
-    failures = _Failures(console)
+    failures = Failures(console)
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -266,10 +266,13 @@ def run_jobs(
                 while queue and free:
                     left = None if deadline is None else deadline - time.monotonic()
                     ratio = statistics.median(ratios) if ratios else float(processes)
-                    i = first_fitting([p for _, p in queue], left, ratio)
+                    live = {d.index for d in devices} - failures.retired
+                    may = [k for k, (j, p) in enumerate(queue)
+                           if failures.may_start((j, p.index), free, live)]  # fmt: skip
+                    i = first_fitting([queue[k][1] for k in may], left, ratio)
                     if i is None:
                         break
-                    (j, piece) = queue.pop(i)
+                    (j, piece) = queue.pop(may[i])
                     device = failures.elsewhere(free, (j, piece.index))
                     free.remove(device)
                     running.append(_start(jobs, j, piece, device, bar, total))
@@ -331,47 +334,6 @@ def _queue(jobs: list[Job]) -> tuple[dict, dict, list]:
     return total, result, queue
 
 
-class _Failures:
-    """The devices each piece failed on; ``retired``: devices on which ``RETIRE_AFTER``
-    pieces failed in a row (another process holds the memory, a broken GPU)."""
-
-    def __init__(self, console: Console):
-        self.console = console
-        self.tries: dict[tuple[int, int], list] = {}  # (job, piece) -> devices it failed on
-        self.in_a_row: dict = {}  # device index -> failures since its last success
-        self.retired: set = set()
-
-    def elsewhere(self, free: list[Device], key: tuple[int, int]) -> Device:
-        """The first free device the piece has not failed on (else the first free one)."""
-        return next((d for d in free if d.index not in self.tries.get(key, [])), free[0])
-
-    def succeeded(self, device: Device) -> None:
-        self.in_a_row[device.index] = 0
-
-    def failed(self, w: _Worker, out: Path) -> bool:
-        """Records a failed worker and says so; True: start its piece once more."""
-        where, key = w.device.index, (w.job, w.piece.index)
-        self.tries.setdefault(key, []).append(where)
-        self.in_a_row[where] = self.in_a_row.get(where, 0) + 1
-        again = len(self.tries[key]) == 1
-        log, more = out / "logs" / f"{w.piece.name}.log", "; it will be started once more"
-        self.console.print(
-            f"[red]piece {w.piece.index} ({w.piece.name}) of {out} failed on "
-            f"{_device_name(w.device)} (exit {w.process.returncode}; {log}){more * again}[/]"
-        )
-        if self.in_a_row[where] >= RETIRE_AFTER and where not in self.retired:
-            self.retired.add(where)
-            self.console.print(
-                f"[red]{_device_name(w.device)}: {self.in_a_row[where]} pieces in a row failed "
-                "on it; it takes no more pieces in this call[/]"
-            )
-        return again
-
-
-def _device_name(device: Device) -> str:
-    return "the CPU" if device.index is None else f"GPU {device.index}"
-
-
 def _start(jobs, j, piece, device, bar, total) -> _Worker:
     study, out = jobs[j].study, jobs[j].out
     here = str(Path(__file__).resolve().parents[2])  # the worker runs this very package
@@ -395,6 +357,6 @@ def _start(jobs, j, piece, device, bar, total) -> _Worker:
     ]
     log = open(out / "logs" / f"{piece.name}.log", "ab")
     name = piece.name if len(jobs) == 1 else f"{study.name}/{piece.name}"
-    task = bar.add_task(f"  {name} ({_device_name(device)})", total=total[j, piece.index])
+    task = bar.add_task(f"  {name} ({device_name(device)})", total=total[j, piece.index])
     process = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT)
     return _Worker(j, piece, device, process, log, task, time.monotonic())

@@ -208,9 +208,9 @@ def test_run_local_fills_each_device_with_per_device_workers(study_file, tmp_pat
     assert {env["XLA_PYTHON_CLIENT_MEM_FRACTION"] for env in started} == {"0.3750"}
 
 
-def _failing_workers(monkeypatch, fails):
-    """Fake workers that end at their second poll, with exit 1 where ``fails(gpu, piece)``;
-    returns the (gpu, piece) of every start, in order."""
+def _failing_workers(monkeypatch, fails, polls=lambda gpu: 2):
+    """Fake workers that end at their ``polls(gpu)``-th poll, with exit 1 where ``fails(gpu,
+    piece)``; returns the (gpu, piece) of every start, in order."""
     started = []
 
     class FakeProcess:
@@ -218,10 +218,11 @@ def _failing_workers(monkeypatch, fails):
             where = (env.get("CUDA_VISIBLE_DEVICES"), int(command[command.index("--piece") + 1]))
             started.append(where)
             self.code, self.returncode, self.polls = int(fails(*where)), None, 0
+            self.end = polls(where[0])
 
         def poll(self):
             self.polls += 1
-            if self.polls == 2:
+            if self.polls == self.end:
                 self.returncode = self.code
             return self.returncode
 
@@ -255,6 +256,31 @@ def test_a_device_that_fails_twice_in_a_row_takes_no_more_and_its_pieces_run_els
     text = console.export_text()
     assert "GPU 0: 2 pieces in a row failed on it; it takes no more pieces" in text
     assert text.count("it will be started once more") == 2
+
+
+def test_a_retry_waits_for_another_device_rather_than_run_where_it_failed(
+    study_file, tmp_path, monkeypatch
+):
+    """The first piece fails on GPU 0 (and would again there). GPU 1 is slow: GPU 0 runs
+    the other pieces while GPU 1 still runs its first, so when the retry comes up only GPU 0
+    is free. The retry waits for GPU 1, where it finishes."""
+    from advisor_jax.study import plan as planning
+
+    study = load_study(study_file)
+    plan = planning.plan_study(study, planning.Device("G", 80 << 30, 0), devices=2, max_agents=1)
+    first = []
+
+    def fails(gpu, piece):
+        first.extend([] if first else [piece])
+        return gpu == "0" and piece == first[0]
+
+    started = _failing_workers(monkeypatch, fails, polls=lambda gpu: 2 if gpu == "0" else 30)
+    devices = [planning.Device("G", 80 << 30, 0), planning.Device("G", 80 << 30, 1)]
+    (tmp_path / "o").mkdir()
+    result = sweep.run_local(study, tmp_path / "o", plan, devices, progress=False)
+    assert set(result.values()) == {"finished"} and len(result) == len(plan.pieces)
+    assert [gpu for gpu, piece in started if piece == first[0]] == ["0", "1"]
+    assert len(started) == len(plan.pieces) + 1
 
 
 def test_a_piece_that_fails_twice_fails_the_sweep_and_the_rest_is_kept(
