@@ -290,9 +290,8 @@ def make_train(
     ``steady``: also compile the chunk's steady program, chosen per chunk (module
     docstring; ``program.latency_bound`` decides where it pays). It is only built where it
     exists: one update per step or no delay, and chunks a whole number of delay periods.
-    ``hold_targets``: the learner holds its target networks built while a chunk runs
-    (``Learner.hold_targets``; only where ``layout`` computes with ``gemm_layers``): the same
-    updates, bit for bit; ``program.holds_targets`` decides where it pays."""
+    ``hold_targets``: a chunk holds the learner's target networks built (``Learner.hold_targets``,
+    the same updates; ``program.holds_targets`` decides where it pays)."""
     core = make_core(cfg, layout)
     agent, learner = cfg.agent, core.learner
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
@@ -366,8 +365,7 @@ def make_train(
 
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
         """`chunk_steps` environment steps; `first_step` is the global index of the first.
-        With ``hold_targets`` the learner holds its target networks built while the chunk
-        runs; the state it returns, as the one it takes, does not."""
+        The state it takes and returns holds no built targets (``LearnerState.target_nets``)."""
         if hold_targets:
             state = state.replace(learner=learner.hold_targets(state.learner))
         if not steady:

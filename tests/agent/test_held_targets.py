@@ -2,8 +2,11 @@
 
 With each hidden layer one GEMM (GPUs), a training chunk builds the target networks' matrices
 once per soft update instead of once per critic step. Held or not, the updates are the same
-bit for bit, through several actor steps with a hard target update (τ = 1), where targets
-built before a soft update would differ at once. The modules hold nothing; a chunk takes and
+through several actor steps with a hard target update (τ = 1), where targets built before a
+soft update would differ at once: bit for bit under XLA's default code generation
+(``experiments/held_targets.py``, on a CPU and an H100), and to rounding under the suite's
+CPU emitters (``tests/conftest.py``), where one element in hundreds may differ in its last
+bit (``tests/compare.assert_same_training``). The modules hold nothing; a chunk takes and
 returns the state without them, so stored states do not depend on the device.
 """
 
@@ -20,6 +23,7 @@ from advisor_jax.agent.learner import make_learner
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
 from advisor_jax.training import program
 from advisor_jax.training.train import make_train
+from tests.compare import assert_same_training
 
 GEMM = networks.Layout(inputs_per_critic=False, layers_in_gemm=True)
 SIZES = dict(actor_hidden=(16, 16), critic_state_hidden=24, critic_hidden=(16, 16))
@@ -37,28 +41,33 @@ def learner_and_replay():
 
 
 @pytest.mark.parametrize("program", ["general", "steady"])
-def test_held_targets_give_the_same_updates_bit_for_bit(learner_and_replay, program):
+def test_held_targets_give_the_same_updates(learner_and_replay, program):
     cfg, learner, replay = learner_and_replay
     hp = HParams(tau=1.0)  # a hard update: stale targets would show at the next critic step
 
     def run(state, hold: bool):
+        def update(state, u, update_fn=None):  # the general update, or the steady one's
+            k_sample, k_critic = jax.random.split(jax.random.fold_in(jax.random.key(10), u))
+            if update_fn is None:
+                return learner.update(state, replay, k_sample, k_critic, hp, u)[:2]
+            return update_fn(state, replay, k_sample, k_critic, hp)[:2]
+
+        def block(state, u):  # d updates written out, the first with the actor step
+            for j in range(cfg.delay):
+                step = learner.update_with_actor if j == 0 else learner.update_critic_only
+                state, metrics = update(state, u + j, step)
+            return state, metrics
+
+        body = update if program == "general" else block
+        starts = jnp.arange(0, 3 * cfg.delay, 1 if program == "general" else cfg.delay)
         state = learner.hold_targets(state) if hold else state
-        for u in range(2 * cfg.delay + 1):  # three actor steps, critic steps between them
-            k_sample, k_critic = jax.random.split(jax.random.key(10 + u))
-            if program == "general":
-                state, metrics, _ = learner.update(state, replay, k_sample, k_critic, hp, u)
-            else:
-                update = (
-                    learner.update_with_actor if u % cfg.delay == 0 else learner.update_critic_only
-                )
-                state, metrics, _ = update(state, replay, k_sample, k_critic, hp)
+        state, metrics = jax.lax.scan(body, state, starts)  # three actor steps, critics between
         return learner.drop_targets(state), metrics
 
     start = jax.jit(learner.init)(jax.random.key(0))
-    held = jax.jit(lambda s: run(s, True))(start)
-    built = jax.jit(lambda s: run(s, False))(start)
-    _assert_equal(held, built)
-    assert held[0].target_nets is None
+    (held, _), (built, _) = (jax.jit(lambda s, h=h: run(s, h))(start) for h in (True, False))
+    assert held.target_nets is None
+    assert_same_training(held, built, start, "held targets")
 
 
 def test_held_targets_are_the_targets_built_after_each_soft_update(learner_and_replay):
