@@ -138,7 +138,7 @@ class Learner(NamedTuple):
     hold_targets: Callable[[LearnerState], LearnerState]
     """(state) -> the state holding its target networks built (``LearnerState.target_nets``;
     unchanged where the flax modules compute): the critic steps that follow read them, and
-    every soft update builds them again. The same updates, bit for bit."""
+    every soft update builds them again. The same updates (bit for bit under XLA's defaults)."""
     drop_targets: Callable[[LearnerState], LearnerState]
     """(state) -> the state without them (``target_nets`` None), as it is stored."""
 

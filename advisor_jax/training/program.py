@@ -123,7 +123,7 @@ def network_layout(backend: str | None = None) -> Layout:
 def holds_targets(program: str) -> bool:
     """Whether the chunk's ``program`` (one of ``PROGRAMS``) has its learner hold the target
     networks built (``Learner.hold_targets``; only with ``layers_in_gemm``): once per soft
-    update instead of once per critic step, the same updates bit for bit. Every program but
+    update instead of once per critic step, the same updates. Every program but
     the latency-bound one: one H100, jax 0.11.2, against the tree before in one command, the
     64-agent bf16 step ran 1.05× (the 128-agent learner 1.04×), fp32 1.00×, and the 1-agent
     bf16 step, the latency-bound program, 0.95× (``results/bench_held_targets/``)."""
