@@ -22,6 +22,12 @@ learning start, and reports per environment step:
     python experiments/profile_train.py --agents 256 --devices 1 2 4 --precision bf16
     python experiments/profile_train.py --preset quick --agents 1 --chunk 20   # CPU smoke run
 
+The chunk is training's program for each population (``--program auto``,
+``program.choose_program``). At most ``program.LATENCY_BOUND_AGENTS`` agents per GPU that is
+the latency-bound program, whose loop runs as one CUDA graph: the profiler sees the graph's
+launch, not its kernels, and the report says so. ``--program steady`` traces the same
+kernels without the whole-loop graph.
+
 Writes ``results/profile_train.md`` and ``.json`` (``--out``).
 """
 
@@ -45,7 +51,7 @@ from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, k
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import population_functions
+from advisor_jax.training.program import PROGRAMS, choose_program, population_functions
 
 # Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
 PARTS = (
@@ -102,11 +108,13 @@ def device_rows(groups: dict[int, list[dict]], steps: int) -> tuple[list[dict], 
     return rows, busy_us([e for evs in groups.values() for e in evs]) / steps
 
 
-def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1) -> dict:
+def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1, program="auto") -> dict:
     """One traced chunk of ``n_agents`` on ``devices``, warm (compiled, past the learning
-    start), placed as training places it (padded and sharded on the agent axis)."""
+    start), placed as training places it (padded and sharded on the agent axis); ``program``:
+    the chunk's (``program.PROGRAMS``; "auto": training's choice for the placement)."""
     placement = place(n_agents, devices)
-    _, init_fn, chunk_fn = population_functions(cfg, placement)  # training's program
+    program = choose_program(placement) if program == "auto" else program
+    _, init_fn, chunk_fn = population_functions(cfg, placement, program)
     hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
     hp = put(hp, placement)
     keys = agent_keys(list(range(n_agents)))
@@ -154,6 +162,7 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1) -> dict:
         _hlo=hlo,
         agents=n_agents,
         devices=devices,
+        program=program,
         steps=steps,
         agent_steps_per_s=n_agents * steps * cfg.envs_per_agent / untraced,
         wall_us_per_step=1e6 * wall / steps,
@@ -196,6 +205,19 @@ def _device_lines(r: dict) -> list[str]:
     ]  # fmt: skip
 
 
+def _program_lines(r: dict) -> list[str]:
+    """The chunk's program; under the latency-bound one on a GPU, that its kernels are hidden."""
+    program = r.get("program", "auto")
+    line = f"The chunk's program: {program}."
+    if program == "latency-bound" and r["event_source"].startswith("device"):
+        line += (
+            " Its loop runs as one CUDA graph: the trace holds the graph's launches, not the"
+            " kernels inside, so the tables below miss most of the step. `--program steady`"
+            " traces the same kernels without the whole-loop graph."
+        )
+    return [line, ""]
+
+
 def report(rows: list[dict], title: str, command: str) -> list[str]:
     lines = ["# Where a training step's time goes", "", title]
     if any(not r["event_source"].startswith("device") for r in rows):
@@ -207,6 +229,7 @@ def report(rows: list[dict], title: str, command: str) -> list[str]:
             "",
             f"## {r['agents']} agent{'s' if r['agents'] > 1 else ''}{on}",
             "",
+            *_program_lines(r),
             *_device_lines(r),
             f"{r['agent_steps_per_s']:,.0f} agent env-steps/s untraced "
             f"({r['wall_untraced_us_per_step']:.0f} µs per population step). Traced: "
@@ -269,6 +292,10 @@ def main() -> None:
                              "in turn), as advisor-jax train --devices does")  # fmt: skip
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
                         help="the learner's precision (AgentConfig.precision)")  # fmt: skip
+    parser.add_argument("--program", default="auto", choices=["auto", *PROGRAMS],
+                        help="the chunk's program (program.PROGRAMS); auto: training's choice, "
+                             "the latency-bound one for small populations, whose whole-loop "
+                             "CUDA graph hides its kernels from the trace")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--keep-hlo", action="store_true",
                         help="also write each size's compiled HLO (gzipped text)")  # fmt: skip
@@ -284,7 +311,7 @@ def main() -> None:
     for n, devices in [(n, d) for d in args.devices for n in args.agents]:
         t0 = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
-            rows.append(profile(cfg, hp, n, Path(tmp), devices))
+            rows.append(profile(cfg, hp, n, Path(tmp), devices, args.program))
         r = rows[-1]
         hlo = r.pop("_hlo")
         if args.keep_hlo:

@@ -82,3 +82,12 @@ def test_devices_that_run_at_once_are_told_from_devices_that_take_turns():
     text = "\n".join(profile_train._device_lines(row))
     assert "20 µs per step, against 20 µs summed" in text  # the turns: union = sum
     assert profile_train._device_lines(dict(per_device=rows[:1])) == []
+
+
+def test_the_report_says_when_a_whole_loop_graph_hides_the_kernels():
+    def lines(program, source):
+        return " ".join(profile_train._program_lines(dict(program=program, event_source=source)))
+
+    assert "The chunk's program: general." == lines("general", "device").strip()
+    assert "not the kernels inside" in lines("latency-bound", "device")
+    assert "not the kernels inside" not in lines("latency-bound", "host")  # no GPU: nothing hidden
