@@ -15,7 +15,7 @@ change hands, on the default device:
     python experiments/held_targets.py                   # on the GPU
     python experiments/held_targets.py --small --agents 2 --chunk 8   # CPU smoke run
 
-Both use the GPU's network layout wherever they run (``networks.Layout(True, True)``), so
+Both use the GPU's network layout wherever they run (``program.network_layout("gpu")``), so
 that a CPU run checks the same program. Prints a table; with ``--out`` writes
 ``held_targets.md`` and ``.json``.
 """
@@ -33,14 +33,13 @@ import numpy as np
 
 from advisor_jax.agent.config import HParams, preset
 from advisor_jax.agent.learner import make_learner
-from advisor_jax.agent.networks import Layout
 from advisor_jax.bench import measure, writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.program import compiler_options
+from advisor_jax.training.program import compiler_options, network_layout
 from advisor_jax.training.train import make_train
 
-GPU_LAYOUT = Layout(inputs_per_critic=True, layers_in_gemm=True)
+GPU_LAYOUT = network_layout("gpu")
 
 
 def _config(precision: str, small: bool):

@@ -10,7 +10,7 @@ from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.contract import spec
-from advisor_jax.training.program import compiler_options, network_layout
+from advisor_jax.training.program import compiler_options, holds_targets, network_layout
 
 SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=4096, batch_size=128)  # fmt: skip
@@ -50,7 +50,7 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
         body, starts = (
             (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
         )
-        if not steady:  # as the general program holds them (program.holds_targets)
+        if holds_targets("latency-bound" if steady else "general"):  # as training's program
             learner_state = learner.hold_targets(learner_state)
         carry = (learner_state, key)
         (learner_state, _), _ = jax.lax.scan(body, carry, starts)
