@@ -39,9 +39,26 @@ from advisor_jax.fileio import atomic_write_json
 PEER_PACKAGES = ("rejax", "gymnax", "distrax")
 
 
+def _tfp_on_current_jax() -> None:
+    """rejax imports distrax, whose tensorflow-probability (0.25, the last release) registers
+    a type in three jax tables that jax 0.5 removed, and so fails to import on the jax we
+    run. Empty tables let it import; nothing rejax's TD3 runs reads them."""
+    import jax.core
+    import jax.interpreters.xla
+
+    for module, name in (
+        (jax.interpreters.xla, "pytype_aval_mappings"),
+        (jax.interpreters.xla, "canonicalize_dtype_handlers"),
+        (jax.core, "pytype_aval_mappings"),
+    ):
+        if not hasattr(module, name):
+            setattr(module, name, {np.ndarray: None})
+
+
 def rejax_td3(preset_name: str, agent: str, steps: int):
     """rejax's TD3 on Pendulum with our preset's sizes, training ``steps`` env steps per seed
     (one evaluation at the end; none at the start)."""
+    _tfp_on_current_jax()
     from flax import linen as nn
     from rejax import TD3
     from rejax.networks import DeterministicPolicy, QNetwork

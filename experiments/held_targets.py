@@ -22,10 +22,8 @@ that a CPU run checks the same program. Prints a table; with ``--out`` writes
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -33,9 +31,8 @@ import numpy as np
 
 from advisor_jax.agent.config import HParams, preset
 from advisor_jax.agent.learner import make_learner
-from advisor_jax.bench import measure, writing
+from advisor_jax.bench import writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
-from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.program import compiler_options, network_layout
 from advisor_jax.training.train import make_train
 
@@ -98,23 +95,14 @@ def temporaries_per_agent(precision: str, n_agents: int, chunk: int, small: bool
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--agents", type=int, default=8)
-    parser.add_argument("--updates", type=int, default=9, help="updates of the parity check")
+    parser = writing.check_parser(__doc__)
     parser.add_argument("--chunk", type=int, default=100, help="env steps of the compiled chunk")
-    parser.add_argument("--precision", nargs="+", default=["bf16", "fp32"])
-    parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
-    parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     rows = []
     for precision in args.precision:
         row = dict(precision=precision, **parity(precision, args.agents, args.updates, args.small))
         memory = temporaries_per_agent(precision, args.agents, args.chunk, args.small)
         rows.append(dict(row, temp_mib_per_agent=memory))
-    info = measure.provenance()
-    command = writing.command_line(
-        "experiments/held_targets.py", sys.argv[1:] if argv is None else argv
-    )
     table = writing.markdown_table(
         ["precision", "bit for bit", "largest difference", "temporaries MiB/agent, built",
          "held", "held − built"],
@@ -123,22 +111,19 @@ def main(argv=None) -> int:
           f"{r['temp_mib_per_agent']['held'] - r['temp_mib_per_agent']['built']:+.2f}"]
          for r in rows],
     )  # fmt: skip
-    lines = [
-        "# Held target networks: parity and memory",
-        "",
+    setup = (
         f"ATD3+AfDP, {'small' if args.small else 'paper'} sizes, {args.agents} agents, "
-        f"{args.updates} updates, a {args.chunk}-step chunk; {info['device']} "
-        f"({info['backend']}), jax {info['jax']}, {info['date']}.",
-        "",
-        *table,
-        "",
-        f"Command: `{command}`",
-    ]
-    if args.out is None:
-        print("\n".join(lines))
-        return 0
-    writing.write_markdown(args.out / "held_targets.md", lines, echo=True)
-    atomic_write_json(args.out / "held_targets.json", dict(info, command=command, rows=rows))
+        f"{args.updates} updates, a {args.chunk}-step chunk"
+    )
+    writing.publish_check(
+        args.out,
+        "experiments/held_targets.py",
+        argv,
+        "Held target networks: parity and memory",
+        setup,
+        table,
+        rows,
+    )
     return 0
 
 

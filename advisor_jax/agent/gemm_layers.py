@@ -38,6 +38,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from advisor_jax.agent import masked_wgrad
+
 ALIGN = 8
 """GEMM widths are padded to a multiple of this (16 bytes of bf16)."""
 
@@ -189,9 +191,16 @@ def critic_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
     return [*matrices, _head_matrix(p["q"], matrices[-1].shape[1])]
 
 
-def critic_forward(matrices: list[jax.Array], obs: jax.Array, action: jax.Array) -> jax.Array:
-    """Q(s, a; θ) from ``critic_matrices``."""
+def critic_forward(
+    matrices: list[jax.Array], obs: jax.Array, action: jax.Array, first_layer_kernel: bool = False
+) -> jax.Array:
+    """Q(s, a; θ) from ``critic_matrices``. ``first_layer_kernel``: the first layer's weight
+    gradient and ReLU mask in one kernel (``masked_wgrad.first_layer``), for a batch ``[n,
+    ...]`` of its tiles' size; the same function."""
     x = with_ones(jnp.concatenate([obs, action.astype(obs.dtype)], axis=-1), matrices[0].dtype)
+    if first_layer_kernel and x.ndim == 2 and masked_wgrad.fits(*x.shape, matrices[0].shape[1]):
+        x = masked_wgrad.first_layer(x, matrices[0])
+        matrices = matrices[1:]
     for matrix in matrices[:-1]:
         x = _hidden(x, matrix)  # after the first: [h, relu(±a), 1, 0…]
     return _head(x, matrices[-1])[..., 0]

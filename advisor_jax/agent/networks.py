@@ -131,6 +131,9 @@ class Layout(NamedTuple):
     """Each twin critic reads its own copy of the inputs (``apply_critics``)."""
     layers_in_gemm: bool = False
     """Each hidden layer one GEMM with its bias inside (``gemm_layers``)."""
+    first_layer_kernel: bool = False
+    """With ``layers_in_gemm``: the critic's first layer's weight gradient and ReLU mask in one
+    kernel (``masked_wgrad``)."""
 
 
 MODULES = Layout()
@@ -189,7 +192,8 @@ def learner_functions(
         NetworkFunctions(partial(gemm_layers.actor_matrices, dtype=actor.dtype),
                          gemm_layers.actor_forward),
         NetworkFunctions(partial(gemm_layers.critic_matrices, dtype=critic.dtype),
-                         gemm_layers.critic_forward),
+                         partial(gemm_layers.critic_forward,
+                                 first_layer_kernel=layout.first_layer_kernel)),
     )  # fmt: skip
 
 

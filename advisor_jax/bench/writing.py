@@ -9,7 +9,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from advisor_jax.fileio import atomic_write_text
+from advisor_jax.fileio import atomic_write_json, atomic_write_text
 
 
 def markdown_table(
@@ -76,3 +76,44 @@ def write_markdown(path: str | os.PathLike, lines: Sequence[str], echo: bool = F
     print(f"wrote {path}", file=sys.stderr)
     if echo:
         print(text, end="")
+
+
+def check_parser(doc: str) -> argparse.ArgumentParser:
+    """The options of a parity check of the learner at paper sizes (``experiments/``:
+    ``--agents``, ``--updates``, ``--precision``, ``--small``, ``--out``), described by the
+    first paragraph of the script's ``doc``."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--agents", type=int, default=8)
+    parser.add_argument("--updates", type=int, default=9, help="updates of the parity check")
+    parser.add_argument("--precision", nargs="+", default=["bf16", "fp32"])
+    parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
+    parser.add_argument("--out", default=None, help="folder for the .md and .json report")
+    return parser
+
+
+def publish_check(
+    out: str | os.PathLike | None,
+    script: str,
+    argv: Sequence[str] | None,
+    title: str,
+    setup: str,
+    table: Sequence[str],
+    rows: list[dict[str, Any]],
+) -> None:
+    """A check script's report: ``# title``, the ``setup`` sentence followed by the device,
+    jax and date (``measure.provenance``), the ``table`` and the command that reproduces it
+    (``script`` with ``argv``; None: this process's arguments). Printed when ``out`` is
+    None; else written as ``out/NAME.md`` (and echoed) and ``out/NAME.json`` (provenance,
+    command and ``rows``), NAME being the script's file name without ``.py``."""
+    from advisor_jax.bench import measure
+
+    info = measure.provenance()
+    command = command_line(script, sys.argv[1:] if argv is None else argv)
+    device = f"{info['device']} ({info['backend']}), jax {info['jax']}, {info['date']}."
+    lines = [f"# {title}", "", f"{setup}; {device}", "", *table, "", f"Command: `{command}`"]
+    if out is None:
+        print("\n".join(lines))
+        return
+    name = os.path.splitext(os.path.basename(script))[0]
+    write_markdown(os.path.join(out, f"{name}.md"), lines, echo=True)
+    atomic_write_json(os.path.join(out, f"{name}.json"), dict(info, command=command, rows=rows))

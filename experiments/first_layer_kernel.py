@@ -1,0 +1,137 @@
+"""The critic's first-layer kernel (``agent/masked_wgrad.py``): same updates, and what XLA made.
+
+On GPUs the critic's first hidden layer computes its weight gradient and ReLU mask in one
+Pallas kernel (``networks.Layout.first_layer_kernel``, ``program.network_layout``). This
+script checks, on the default device, ATD3+AfDP at paper sizes (``--small``: tiny networks):
+
+* **gradients**: one critic step's gradient of the first layer's matrix with and without
+  the kernel, on the same batch: the largest difference against the gradient's scale;
+* **updates**: ``--updates`` whole updates (the delay's actor steps among them) of
+  ``--agents`` agents with and without it, compiled as training compiles them: the largest
+  difference of any leaf of the final states;
+* **the compiled update**: how many of its custom calls are the kernel, and the library
+  GEMMs beside them (so a reader sees the kernel ran where intended and nowhere else).
+
+Both layouts are the GPU's (``program.network_layout("gpu")``) wherever this runs; off a GPU
+the kernel runs in Pallas's interpreter.
+
+    python experiments/first_layer_kernel.py                  # on the GPU
+    python experiments/first_layer_kernel.py --small --agents 2 --updates 5   # CPU smoke run
+
+Prints a table; with ``--out`` writes ``first_layer_kernel.md`` and ``.json``.
+"""
+
+from __future__ import annotations
+
+import collections
+import re
+import sys
+
+import jax
+import jax.numpy as jnp
+
+from advisor_jax.agent.config import HParams, preset
+from advisor_jax.agent.learner import make_learner
+from advisor_jax.agent.replay_buffer import replay_sample
+from advisor_jax.bench import writing
+from advisor_jax.bench.learner_loop import SMALL, fill_replay
+from advisor_jax.training.program import compiler_options, network_layout
+
+KERNEL = network_layout("gpu")
+WITHOUT = KERNEL._replace(first_layer_kernel=False)
+
+
+def _learners(precision: str, small: bool = False):
+    name, sizes = ("quick", SMALL) if small else ("paper", {})
+    cfg = preset(name, "ATD3+AfDP", precision=precision, **sizes)[0].agent
+    return cfg, make_learner(cfg, layout=KERNEL), make_learner(cfg, layout=WITHOUT)
+
+
+def _max_diff(a, b) -> float:
+    pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    return max(float(jnp.max(jnp.abs(x.astype(jnp.float32) - y.astype(jnp.float32))))
+               for x, y in pairs)  # fmt: skip
+
+
+def gradient_check(precision: str, small: bool = False) -> dict:
+    """One critic step from the same state and batch: the new critic parameters' largest
+    difference with and without the kernel, against the step's largest change."""
+    cfg, with_kernel, without = _learners(precision, small)
+    state = with_kernel.init(jax.random.key(0))
+    replay = fill_replay(cfg.buffer_size, jax.random.key(1))
+    batch = replay_sample(replay, jax.random.key(2), cfg.batch_size)
+    options = compiler_options(precision)
+    steps = [
+        jax.jit(lambda s, b, learner=learner: learner.critic_step(s, b, jax.random.key(3),
+                                                                  HParams())[0].critic,
+                compiler_options=options)(state, batch)
+        for learner in (with_kernel, without)
+    ]  # fmt: skip
+    return dict(step_difference=_max_diff(*steps), step_size=_max_diff(steps[1], state.critic))
+
+
+def update_check(
+    precision: str, n_agents: int, n_updates: int, small: bool = False
+) -> tuple[dict, str]:
+    """``n_updates`` vmapped updates with and without the kernel: the largest difference of
+    the final states; and the compiled loop's HLO text (with the kernel)."""
+    cfg, with_kernel, without = _learners(precision, small)
+    keys = jax.random.split(jax.random.key(0), n_agents)
+    replay = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
+        cfg.buffer_size, jax.random.split(jax.random.key(1), n_agents)
+    )
+    init = jax.jit(jax.vmap(with_kernel.init))(keys)
+
+    def loop(learner):
+        def run(state, replay):
+            state = learner.hold_targets(state)
+            for u in range(n_updates):
+                k_sample, k_critic = jax.random.split(jax.random.key(10 + u))
+                state, _, _ = learner.update(state, replay, k_sample, k_critic, HParams(), u)
+            return learner.drop_targets(state)
+
+        return jax.jit(jax.vmap(run), compiler_options=compiler_options(precision))
+
+    compiled = loop(with_kernel).lower(init, replay).compile()
+    finals = [compiled(init, replay), loop(without)(init, replay)]
+    return dict(update_difference=_max_diff(*finals)), compiled.as_text()
+
+
+def custom_calls(hlo: str) -> dict:
+    """Custom-call targets of a compiled HLO text, counted; and how many of them launch the
+    kernel (none off a GPU, where Pallas interprets it as ordinary operations)."""
+    kernel = re.compile(r'custom_call_target="__gpu\$xla\.gpu\.triton".*masked_weight_gradient')
+    return dict(
+        custom_calls=dict(collections.Counter(re.findall(r'custom_call_target="([^"]+)"', hlo))),
+        kernel_calls=sum(bool(kernel.search(line)) for line in hlo.splitlines()),
+    )
+
+
+def main(argv=None) -> int:
+    parser = writing.check_parser(__doc__)
+    args = parser.parse_args(argv)
+    rows = []
+    for precision in args.precision:
+        updates, hlo = update_check(precision, args.agents, args.updates, args.small)
+        rows.append(dict(precision=precision, **gradient_check(precision, args.small), **updates,
+                         **custom_calls(hlo)))  # fmt: skip
+    table = writing.markdown_table(
+        ["precision", "one critic step: difference", "the step's largest change",
+         f"{args.updates} updates: difference", "kernel launches", "custom calls"],
+        [[r["precision"], f"{r['step_difference']:.3g}", f"{r['step_size']:.3g}",
+          f"{r['update_difference']:.3g}", r["kernel_calls"],
+          ", ".join(f"{k} × {v}" for k, v in sorted(r["custom_calls"].items()))]
+         for r in rows],
+    )  # fmt: skip
+    setup = (
+        f"ATD3+AfDP, {'small' if args.small else 'paper'} sizes, {args.agents} agents, "
+        f"{args.updates} updates"
+    )
+    writing.publish_check(args.out, "experiments/first_layer_kernel.py", argv,
+                          "The critic's first-layer kernel: parity and the compiled update",
+                          setup, table, rows)  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

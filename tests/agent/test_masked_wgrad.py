@@ -1,0 +1,116 @@
+"""The critic's first layer with its weight gradient and ReLU mask in one kernel
+(``agent/masked_wgrad.py``), run here in Pallas's interpreter: the same gradient as the mask
+and GEMM it replaces, its edge tiles included, and the same learner updates."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from advisor_jax.agent import gemm_layers, masked_wgrad, networks
+from advisor_jax.agent.config import HParams, parse_agent
+from advisor_jax.agent.learner import make_learner
+from advisor_jax.bench.learner_loop import SMALL, fill_replay
+from tests.compare import assert_same_training
+
+
+def _inputs(n, k, m, dtype, seed=0):
+    keys = jax.random.split(jax.random.key(seed), 3)
+    return tuple(jax.random.normal(key, shape, dtype) for key, shape in
+                 zip(keys, [(n, k), (n, m), (n, m)], strict=True))  # fmt: skip
+
+
+def _reference(x, y, g):
+    masked = jnp.where(y > 0, g, 0).astype(jnp.float32)
+    return x.astype(jnp.float32).T @ masked
+
+
+# (n, k, m): tiles that divide; a batch whose last row tile overlaps the one before (40 =
+# 32 + 8) and columns whose last tile does too (72 = 64 + 8); the paper's first layer.
+@pytest.mark.parametrize("n, k, m", [(64, 16, 128), (40, 24, 72), (1000, 24, 1008)])
+def test_the_kernel_is_the_masked_weight_gradient(n, k, m):
+    x, y, g = _inputs(n, k, m, jnp.float32)
+    got = masked_wgrad.weight_gradient(x, y, g)
+    assert got.shape == (k, m) and got.dtype == jnp.float32
+    want = _reference(x, y, g)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 * float(jnp.max(jnp.abs(want))))
+
+
+def test_a_row_summed_twice_or_a_column_left_out_would_show():
+    # All ones: every entry of the gradient counts the batch's rows, n, exactly.
+    n, k, m = 40, 24, 72
+    ones = jnp.ones((n, k)), jnp.ones((n, m)), jnp.ones((n, m))
+    np.testing.assert_array_equal(masked_wgrad.weight_gradient(*ones), np.full((k, m), n))
+
+
+def test_bf16_rounds_once_from_an_fp32_sum():
+    x, y, g = _inputs(64, 24, 128, jnp.bfloat16)
+    got = masked_wgrad.weight_gradient(x, y, g)
+    assert got.dtype == jnp.bfloat16
+    want = _reference(x, y, g)
+    np.testing.assert_allclose(got.astype(jnp.float32), want, rtol=2**-7, atol=1e-2)
+
+
+def test_vmapped_kernels_are_separate_kernels():
+    x, y, g = (a.reshape(3, 2, *a.shape[1:]) for a in _inputs(6, 24, 72, jnp.float32))
+    x, y, g = (jnp.broadcast_to(a[:, :, None], (3, 2, 40, a.shape[-1])) for a in (x, y, g))
+    x = x * jnp.arange(1, 41, dtype=jnp.float32)[:, None]  # rows differ
+    got = jax.vmap(jax.vmap(masked_wgrad.weight_gradient))(x, y, g)
+    want = jnp.einsum("abnk,abnm->abkm", x, jnp.where(y > 0, g, 0))
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-3)
+
+
+def test_a_layer_below_the_tiles_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"\[8, 24\] x \[8, 72\]"):
+        masked_wgrad.weight_gradient(*_inputs(8, 24, 72, jnp.float32))
+    assert not masked_wgrad.fits(8, 24, 72) and masked_wgrad.fits(16, 16, 16)
+
+
+def test_the_layer_has_gemm_layers_value_and_gradients():
+    x, _, _ = _inputs(40, 24, 72, jnp.float32)
+    matrix = jax.random.normal(jax.random.key(5), (24, 72)) / 5
+    cotangent = jax.random.normal(jax.random.key(6), (40, 72))
+
+    def loss(layer):
+        return lambda x, w: jnp.sum(layer(x, w) * cotangent)
+
+    want = jax.grad(loss(gemm_layers._hidden), (0, 1))(x, matrix)
+    got = jax.grad(loss(masked_wgrad.first_layer), (0, 1))(x, matrix)
+    value = masked_wgrad.first_layer(x, matrix)
+    np.testing.assert_array_equal(value, gemm_layers._hidden(x, matrix))
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+
+
+def test_the_critic_falls_back_below_the_tiles():
+    # A batch of 8 has no tile: the kernel's layout computes as gemm_layers does.
+    cfg = parse_agent("ATD3+AfDP", **SMALL)
+    critic = networks.make_critic(cfg)
+    params = networks.init_critics(critic, jax.random.key(0), 1)
+    params = jax.tree.map(lambda a: a[0], params)
+    obs, action = jnp.ones((8, 20)), jnp.full((8, 2), 0.5)
+    matrices = gemm_layers.critic_matrices(params)
+    np.testing.assert_array_equal(
+        gemm_layers.critic_forward(matrices, obs, action, first_layer_kernel=True),
+        gemm_layers.critic_forward(matrices, obs, action),
+    )
+
+
+def test_a_learner_with_the_kernel_takes_the_same_updates():
+    sizes = dict(actor_hidden=(16, 16), critic_state_hidden=24, critic_hidden=(16, 16))
+    cfg = parse_agent("ATD3+AfDP", **{**SMALL, **sizes, "batch_size": 40, "buffer_size": 256})
+    replay = fill_replay(cfg.buffer_size, jax.random.key(1))
+    layouts = {"kernel": networks.Layout(True, True, True), "xla": networks.Layout(True, True)}
+    start = make_learner(cfg, layout=layouts["xla"]).init(jax.random.key(0))
+    states = {}
+    for name, layout in layouts.items():
+        learner = make_learner(cfg, layout=layout)
+        state, update = start, jax.jit(learner.update)
+        for u in range(cfg.delay + 1):  # critic steps and one actor step
+            keys = jax.random.split(jax.random.key(10 + u))
+            state, _, nonfinite = update(state, replay, keys[0], keys[1], HParams(), u)
+            assert not bool(nonfinite)
+        states[name] = state
+    assert_same_training(states["kernel"], states["xla"], start, "learner")

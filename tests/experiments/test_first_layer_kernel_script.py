@@ -1,0 +1,19 @@
+"""experiments/first_layer_kernel.py: parity and the compiled update, small, on the CPU."""
+
+from __future__ import annotations
+
+import json
+
+from tests.experiments.scripts import load_script
+
+first_layer_kernel = load_script("first_layer_kernel")
+
+
+def test_a_small_run_reports_parity_and_no_kernel_launch_off_a_gpu(tmp_path):
+    argv = ["--small", "--agents", "2", "--updates", "2", "--precision", "fp32"]
+    assert first_layer_kernel.main([*argv, "--out", str(tmp_path)]) == 0
+    (row,) = json.loads((tmp_path / "first_layer_kernel.json").read_text())["rows"]
+    assert row["step_difference"] < 1e-3 * row["step_size"]
+    assert row["update_difference"] < 1e-4
+    assert row["kernel_calls"] == 0  # interpreted on a CPU: ordinary operations, no launch
+    assert "| fp32 |" in (tmp_path / "first_layer_kernel.md").read_text()
