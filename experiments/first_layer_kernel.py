@@ -32,6 +32,7 @@ import jax.numpy as jnp
 
 from advisor_jax.agent.config import HParams, preset
 from advisor_jax.agent.learner import make_learner
+from advisor_jax.agent.masked_wgrad import KERNEL_NAME
 from advisor_jax.agent.replay_buffer import replay_sample
 from advisor_jax.bench import writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
@@ -100,7 +101,7 @@ def update_check(
 def custom_calls(hlo: str) -> dict:
     """Custom-call targets of a compiled HLO text, counted; and how many of them launch the
     kernel (none off a GPU, where Pallas interprets it as ordinary operations)."""
-    kernel = re.compile(r'custom_call_target="__gpu\$xla\.gpu\.triton".*masked_weight_gradient')
+    kernel = re.compile(r'custom_call_target="__gpu\$xla\.gpu\.triton".*' + KERNEL_NAME)
     return dict(
         custom_calls=dict(collections.Counter(re.findall(r'custom_call_target="([^"]+)"', hlo))),
         kernel_calls=sum(bool(kernel.search(line)) for line in hlo.splitlines()),

@@ -42,6 +42,8 @@ COLS = 128
 """Output columns per program."""
 MIN_TILE = 16
 """The tensor cores' least dimension: smaller layers keep XLA's mask and GEMM."""
+KERNEL_NAME = "masked_weight_gradient"
+"""The kernel's name in compiled HLO and in device traces."""
 
 
 def _pow2_floor(n: int) -> int:
@@ -90,7 +92,7 @@ def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | 
         out_shape=jax.ShapeDtypeStruct((k_tile, m), y.dtype),
         grid=(pl.cdiv(m, cols),),
         interpret=interpret,
-        name="masked_weight_gradient",
+        name=KERNEL_NAME,
     )(x, y, g)
     return out[:k]
 

@@ -9,7 +9,10 @@ import json
 import re
 from pathlib import Path
 
+from advisor_jax.agent import masked_wgrad
+
 KINDS = (
+    ("our Pallas kernel", re.compile(masked_wgrad.KERNEL_NAME)),
     ("collective", re.compile(r"^nccl")),
     ("gemm", re.compile(r"gemm|xmma|cutlass|wgmma|cublas|sm90_|sm80_|matmul|dot|triton_gemm")),
     ("copy/transpose", re.compile(r"transpose|copy|memcpy|memset|concatenate|slice|pad")),

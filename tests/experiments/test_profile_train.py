@@ -51,6 +51,7 @@ def test_nccl_kernels_are_collectives_not_cublas():
     assert profile_train.part_of("", False, kernel).startswith("collective between devices")
     assert kind_of(kernel) == "collective"
     assert kind_of("nvjet_sm90_tst_128x256_64x4_2x1_v_badd_coopA_NNN") == "gemm"
+    assert kind_of("masked_weight_gradient") == "our Pallas kernel"
 
 
 def test_gaps_between_kernels_overlaps_count_as_none():
