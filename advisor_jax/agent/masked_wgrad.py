@@ -17,6 +17,9 @@ Measured on an H100 (``results/bench_first_layer_kernel/``): 0.394 ms per 128-ag
 update, at the device's copy rate, and the learner 1.03× (bf16) / 1.04× (fp32) faster, with
 the same updates.
 
+A population split over several devices does not use it (``training.program.placement_layout``):
+XLA's partitioner cannot split a Pallas custom call along the agents.
+
 ``first_layer`` is the layer with that backward (``jax.custom_vjp``). Where the input's
 gradient is wanted (the actor step's ∇_a Q of Eq. 2) it is computed as before, from the
 masked gradient, and XLA drops whichever of the two gradients nobody reads.
