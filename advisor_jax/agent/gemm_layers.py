@@ -122,6 +122,28 @@ def _hidden(x: jax.Array, matrix: jax.Array) -> jax.Array:
     return relu(_dot(x, matrix))
 
 
+@jax.custom_vjp
+def first_critic_layer(x: jax.Array, matrix: jax.Array) -> jax.Array:
+    """``_hidden(x, matrix)`` for the critic's first layer, ``x [n, k]`` its augmented input,
+    whose weight gradient is one kernel with the ReLU's mask (``masked_wgrad``)."""
+    return _hidden(x, matrix)
+
+
+def _first_critic_layer_forward(x, matrix):
+    y = _hidden(x, matrix)
+    return y, (x, matrix, y)
+
+
+def _first_critic_layer_backward(residuals, g):
+    x, matrix, y = residuals
+    (masked,) = _relu_backward(y, g)  # read only by the input's gradient, if anyone wants it
+    d_x = jax.lax.dot_general(masked, matrix, (((1,), (1,)), ((), ())))
+    return d_x, masked_wgrad.weight_gradient(x, y, g)
+
+
+first_critic_layer.defvjp(_first_critic_layer_forward, _first_critic_layer_backward)
+
+
 def _head(x: jax.Array, matrix: jax.Array) -> jax.Array:
     """The fp32 output head (``nn.Dense`` at fp32) on an augmented input."""
     return _dot(x.astype(jnp.float32), matrix)
@@ -195,14 +217,14 @@ def critic_forward(
     matrices: list[jax.Array], obs: jax.Array, action: jax.Array, first_layer_kernel: bool = False
 ) -> jax.Array:
     """Q(s, a; θ) from ``critic_matrices``. ``first_layer_kernel``: the first layer's weight
-    gradient and ReLU mask in one kernel (``masked_wgrad.first_layer``), for a batch ``[n,
+    gradient and ReLU mask in one kernel (``first_critic_layer``), for a batch ``[n,
     ...]`` of its tiles' size; the same function."""
     x = with_ones(jnp.concatenate([obs, action.astype(obs.dtype)], axis=-1), matrices[0].dtype)
-    if first_layer_kernel and x.ndim == 2 and masked_wgrad.fits(*x.shape, matrices[0].shape[1]):
-        x = masked_wgrad.first_layer(x, matrices[0])
-        matrices = matrices[1:]
-    for matrix in matrices[:-1]:
-        x = _hidden(x, matrix)  # after the first: [h, relu(±a), 1, 0…]
+    fits = x.ndim == 2 and masked_wgrad.fits(*x.shape, matrices[0].shape[1])
+    first = first_critic_layer if first_layer_kernel and fits else _hidden
+    x = first(x, matrices[0])  # [h, relu(±a), 1, 0…]
+    for matrix in matrices[1:-1]:
+        x = _hidden(x, matrix)
     return _head(x, matrices[-1])[..., 0]
 
 

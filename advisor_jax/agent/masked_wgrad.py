@@ -20,9 +20,9 @@ the same updates.
 A population split over several devices does not use it (``training.program.placement_layout``):
 XLA's partitioner cannot split a Pallas custom call along the agents.
 
-``first_layer`` is the layer with that backward (``jax.custom_vjp``). Where the input's
-gradient is wanted (the actor step's ∇_a Q of Eq. 2) it is computed as before, from the
-masked gradient, and XLA drops whichever of the two gradients nobody reads.
+``gemm_layers.first_critic_layer`` is the layer with that backward (``jax.custom_vjp``).
+Where the input's gradient is wanted (the actor step's ∇_a Q of Eq. 2) it is computed as
+before, from the masked gradient, and XLA drops whichever of the two gradients nobody reads.
 
 The kernel's tiles never leave the arrays: the last tile of the batch (rows) starts at
 ``n - ROWS`` and zeroes the rows an earlier tile summed (1,000 has no power-of-two divisor
@@ -98,33 +98,3 @@ def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | 
         name=KERNEL_NAME,
     )(x, y, g)
     return out[:k]
-
-
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
-def first_layer(x: jax.Array, matrix: jax.Array, interpret: bool | None = None) -> jax.Array:
-    """``relu(x @ matrix)`` (``gemm_layers``' hidden layer) whose weight gradient is
-    ``weight_gradient``: for the critic's first layer, ``x [n, k]`` its augmented input."""
-    return _forward(x, matrix)
-
-
-def _forward(x, matrix):
-    y = jax.lax.dot_general(x, matrix, (((1,), (0,)), ((), ())))
-    return jnp.maximum(y, jnp.zeros((), y.dtype))
-
-
-def _first_layer_fwd(x, matrix, interpret):
-    y = _forward(x, matrix)
-    return y, (x, matrix, y)
-
-
-def _first_layer_bwd(interpret, residuals, g):
-    x, matrix, y = residuals
-    # As ``gemm_layers.relu``: keeps XLA from masking by the GEMM's result instead of Y.
-    y = jax.lax.optimization_barrier(y)
-    d_matrix = weight_gradient(x, y, g, interpret)
-    masked = jnp.where(y > 0, g, jnp.zeros((), g.dtype))
-    d_x = jax.lax.dot_general(masked, matrix, (((1,), (1,)), ((), ())))
-    return d_x, d_matrix
-
-
-first_layer.defvjp(_first_layer_fwd, _first_layer_bwd)

@@ -77,8 +77,8 @@ def test_the_layer_has_gemm_layers_value_and_gradients():
         return lambda x, w: jnp.sum(layer(x, w) * cotangent)
 
     want = jax.grad(loss(gemm_layers._hidden), (0, 1))(x, matrix)
-    got = jax.grad(loss(masked_wgrad.first_layer), (0, 1))(x, matrix)
-    value = masked_wgrad.first_layer(x, matrix)
+    got = jax.grad(loss(gemm_layers.first_critic_layer), (0, 1))(x, matrix)
+    value = gemm_layers.first_critic_layer(x, matrix)
     np.testing.assert_array_equal(value, gemm_layers._hidden(x, matrix))
     for a, b in zip(got, want, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
