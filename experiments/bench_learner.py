@@ -238,6 +238,7 @@ def main() -> None:
         latency_bound=args.latency_bound, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
+        command=writing.command_line("experiments/bench_learner.py", sys.argv[1:]),
     )  # fmt: skip
     atomic_write_json(args.out / "bench_learner.json", result)
     table = writing.markdown_table(
@@ -300,8 +301,7 @@ def main() -> None:
                 ("piece", "µs"), ((k, 1e6 * v) for k, v in pieces), ("", ".1f")
             ),
         ]
-    command = writing.command_line("experiments/bench_learner.py", sys.argv[1:])
-    lines += ["", f"Command: `{command}`", ""]
+    lines += ["", f"Command: `{result['command']}`", ""]
     writing.write_markdown(args.out / "bench_learner.md", lines)
     print(np.round([r["agent_updates_per_s"] for r in rows]))
 

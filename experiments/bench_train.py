@@ -165,6 +165,7 @@ def main() -> None:
         chunk=args.chunk,
         rows=rows,
         reference=reference,
+        command=writing.command_line("experiments/bench_train.py", sys.argv[1:]),
     )
     atomic_write_json(args.out / f"{args.name}.json", result)
     lines = [
@@ -194,7 +195,7 @@ def main() -> None:
         "Speed-up: over the first device count, same population and precision.",
         *reference_lines(rows, reference, args.reference),
         "",
-        f"Command: `{writing.command_line('experiments/bench_train.py', sys.argv[1:])}`",
+        f"Command: `{result['command']}`",
     ]
     writing.write_markdown(args.out / f"{args.name}.md", lines)
 

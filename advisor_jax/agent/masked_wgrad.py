@@ -17,8 +17,10 @@ Measured on an H100 (``results/bench_first_layer_kernel/``): 0.394 ms per 128-ag
 update, at the device's copy rate, and the learner 1.03× (bf16) / 1.04× (fp32) faster, with
 the same updates.
 
-A population split over several devices does not use it (``training.program.placement_layout``):
-XLA's partitioner cannot split a Pallas custom call along the agents.
+Under ``jax.vmap`` (the population's agents, the twin critics) the kernel runs once over the
+stacked batch, which XLA's partitioner splits along the agents like any batched operation:
+a population sharded over several devices runs each device's agents' kernels on that device,
+no collective between them (``weight_gradient``).
 
 ``gemm_layers.first_critic_layer`` is the layer with that backward (``jax.custom_vjp``).
 Where the input's gradient is wanted (the actor step's ∇_a Q of Eq. 2) it is computed as
@@ -36,8 +38,11 @@ import functools
 
 import jax
 import jax.numpy as jnp
+from jax.custom_batching import custom_vmap
 from jax.experimental import pallas as pl
+from jax.experimental.custom_partitioning import custom_partitioning
 from jax.experimental.pallas import triton as pl_triton
+from jax.sharding import NamedSharding, PartitionSpec
 
 ROWS = 32
 """Batch rows per step of the kernel's reduction."""
@@ -78,13 +83,15 @@ def fits(n: int, k: int, m: int) -> bool:
     return min(n, k, m) >= MIN_TILE
 
 
-def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | None = None):
+def kernel(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | None = None):
     """``xᵀ · where(y > 0, g, 0)`` → ``[k, m]`` in ``y``'s dtype (fp32 accumulation), for
-    ``x [n, k]``, ``y`` and ``g`` ``[n, m]``; batch with ``jax.vmap``. ``interpret``: run
-    the kernel in Pallas's interpreter (default: off a GPU)."""
+    ``x [n, k]``, ``y`` and ``g`` ``[n, m]``: one Pallas kernel. ``interpret``: run it in
+    Pallas's interpreter (default: off a GPU). ``jax.vmap`` batches it into a grid axis of
+    the same kernel, a custom call XLA's partitioner cannot split: batch with
+    ``weight_gradient`` instead."""
     (n, k), m = x.shape, y.shape[1]
     if not fits(n, k, m):
-        raise ValueError(f"weight_gradient: [{n}, {k}] x [{n}, {m}] has a side below {MIN_TILE}")
+        raise ValueError(f"masked_wgrad: [{n}, {k}] x [{n}, {m}] has a side below {MIN_TILE}")
     if interpret is None:
         interpret = jax.default_backend() != "gpu"
     k_tile = pl.next_power_of_2(k)  # a tile's sides are powers of two: x gets zero columns
@@ -98,3 +105,68 @@ def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | 
         name=KERNEL_NAME,
     )(x, y, g)
     return out[:k]
+
+
+def _agents_only(sharding: NamedSharding, ndim: int) -> NamedSharding:
+    """``sharding`` on the leading (agent) axis, the other ``ndim - 1`` axes whole."""
+    leading = tuple(sharding.spec)[:1] or (None,)
+    return NamedSharding(sharding.mesh, PartitionSpec(*leading, *([None] * (ndim - 1))))
+
+
+def _partition(mesh, arg_shapes, result_shape):
+    sharding = _agents_only(arg_shapes[0].sharding, 3)
+    return mesh, jax.vmap(kernel), sharding, (sharding,) * 3
+
+
+def _infer_sharding(mesh, arg_shapes, result_shape):
+    return _agents_only(arg_shapes[0].sharding, 3)
+
+
+@custom_partitioning
+def _split_by_agents(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+    """``kernel`` over a leading batch axis, ``[b, n, k]`` → ``[b, k, m]``. Over several
+    devices XLA's partitioner gives each device the kernel of its own rows of that axis (its
+    agents), where the kernel's custom call alone would be gathered whole onto every device;
+    on one device it is ``jax.vmap(kernel)`` itself."""
+    return jax.vmap(kernel)(x, y, g)
+
+
+_split_by_agents.def_partition(
+    _partition,
+    infer_sharding_from_operands=_infer_sharding,
+    sharding_rule="b n k, b n m, b n m -> b k m",
+    need_replication_factors=("n", "k", "m"),
+)
+
+
+def _batched(size: int, in_batched, args):
+    """``args`` each with a leading axis of ``size``: the unbatched ones broadcast."""
+    pairs = zip(args, in_batched, strict=True)
+    return [a if batched else jnp.broadcast_to(a, (size, *a.shape)) for a, batched in pairs]
+
+
+@custom_vmap
+def _stacked(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+    """``_split_by_agents``, whose ``jax.vmap`` merges the new axis into the batch (leading,
+    so the agents stay its major part and its sharding)."""
+    return _split_by_agents(x, y, g)
+
+
+@_stacked.def_vmap
+def _stacked_vmap(size, in_batched, x, y, g):
+    x, y, g = _batched(size, in_batched, (x, y, g))
+    out = _stacked(*(a.reshape(-1, *a.shape[2:]) for a in (x, y, g)))
+    return out.reshape(size, -1, *out.shape[1:]), True
+
+
+@custom_vmap
+def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+    """``xᵀ · where(y > 0, g, 0)`` (``kernel``), whose ``jax.vmap``, once or nested, is one
+    kernel over the stacked batch that a population sharded along its agents splits by device
+    (``_split_by_agents``)."""
+    return kernel(x, y, g)
+
+
+@weight_gradient.def_vmap
+def _weight_gradient_vmap(size, in_batched, x, y, g):
+    return _stacked(*_batched(size, in_batched, (x, y, g))), True

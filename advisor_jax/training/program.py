@@ -114,24 +114,17 @@ def layers_in_gemm(backend: str | None = None) -> bool:
     return backend == "gpu"
 
 
-def network_layout(backend: str | None = None, sharded: bool = False) -> Layout:
+def network_layout(backend: str | None = None) -> Layout:
     """How the learner's networks are computed on ``backend`` (JAX's default when None):
     ``networks.Layout`` from ``twin_inputs_per_critic`` and ``layers_in_gemm``, and with the
     GEMM layers the critic's first-layer kernel (``agent/masked_wgrad.py``). One H100, jax
     0.11.2, against the tree without it in one command: the 128-agent learner 1.03× in bf16
     and 1.04× in fp32, the 64-agent step 1.03× / 1.04×, the 1-agent bf16 step 1.01×, and the
     same updates (bit for bit over 9 bf16 updates; ``results/bench_first_layer_kernel/``).
-
-    ``sharded``: the population is split over several devices. The kernel is a custom call
-    that XLA's partitioner cannot split along the agents, so such a population keeps XLA's
-    mask and GEMM for that layer (a sharded program with the kernel was never compiled)."""
+    A population split over several GPUs runs it too, each device its own agents' kernels
+    (``masked_wgrad.weight_gradient``)."""
     gemm = layers_in_gemm(backend)
-    return Layout(twin_inputs_per_critic(backend), gemm, first_layer_kernel=gemm and not sharded)
-
-
-def placement_layout(placement: Placement | None, backend: str | None = None) -> Layout:
-    """``network_layout`` for ``placement``'s population (None: one device)."""
-    return network_layout(backend, sharded=placement is not None and placement.n_devices > 1)
+    return Layout(twin_inputs_per_critic(backend), gemm, first_layer_kernel=gemm)
 
 
 def holds_targets(program: str) -> bool:
@@ -210,7 +203,7 @@ def population_functions(
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
     overlap = program == "latency-bound"
-    layout = placement_layout(placement)
+    layout = network_layout()
     # The agent axis carries the mesh axis's name: a collective over it inside the step
     # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
     # written; tests/training/test_collectives.py injects one to show that its check of the

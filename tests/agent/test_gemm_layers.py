@@ -144,20 +144,6 @@ def test_a_learner_on_gemm_layers_takes_the_modules_updates():
     assert max_relative_difference(states["modules"].actor, states["gemm"].actor) < 1e-4
 
 
-def test_a_population_split_over_devices_keeps_xlas_first_layer():
-    # The kernel is a custom call XLA's partitioner cannot split along the agents.
-    from types import SimpleNamespace
-
-    from advisor_jax.training.program import placement_layout
-
-    one, two = SimpleNamespace(n_devices=1), SimpleNamespace(n_devices=2)
-    assert placement_layout(None, "gpu").first_layer_kernel
-    assert placement_layout(one, "gpu").first_layer_kernel
-    sharded = placement_layout(two, "gpu")
-    assert not sharded.first_layer_kernel and sharded.layers_in_gemm
-    assert placement_layout(two, "cpu") == networks.MODULES
-
-
 def test_gpus_get_the_layout_and_cpus_the_modules():
     assert network_layout("gpu") == networks.Layout(
         inputs_per_critic=True, layers_in_gemm=True, first_layer_kernel=True

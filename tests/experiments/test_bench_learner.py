@@ -37,3 +37,18 @@ def test_a_loop_that_is_not_whole_blocks_keeps_the_conditional():
     states = jax.jit(jax.vmap(learner.init))(keys)
     replays = jax.vmap(learner_loop.fill_replay, in_axes=(None, 0))(256, keys)
     assert jax.device_get(loop(states, replays, keys)).actor_updates.tolist() == [3]
+
+
+def test_the_report_records_its_command(tmp_path, monkeypatch):
+    # Each row of results/bench_learner.json names the command that measured it.
+    import json
+    import sys
+
+    from tests.experiments.scripts import load_script
+
+    argv = ["--small", "--agents", "1", "--updates", "2", "--precision", "fp32", "--out"]
+    monkeypatch.setattr(sys, "argv", ["bench_learner.py", *argv, str(tmp_path)])
+    load_script("bench_learner").main()
+    command = json.loads((tmp_path / "bench_learner.json").read_text())["command"]
+    assert command == f"python experiments/bench_learner.py {' '.join(argv)} {tmp_path}"
+    assert f"Command: `{command}`" in (tmp_path / "bench_learner.md").read_text()

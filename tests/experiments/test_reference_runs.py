@@ -4,6 +4,8 @@ to this one, its report comes back; bench_train.py pairs its rows with this tree
 
 from __future__ import annotations
 
+import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -65,3 +67,13 @@ def test_bench_train_pairs_rows_by_agents_devices_and_precision():
         "| bf16 | 64 | 1 | 600 | 900 | 1.50 |",
     ]
     assert bench_train.reference_lines(rows, None, None) == []
+
+
+def test_the_report_records_its_command(tmp_path, monkeypatch):
+    # Each row of results/bench_train.json (and bench_multigpu.json) names its command.
+    argv = ["--preset", "quick", "--agents", "1", "--chunk", "2", "--repeats", "1", "--out"]
+    monkeypatch.setattr(sys, "argv", ["bench_train.py", *argv, str(tmp_path)])
+    bench_train.main()
+    command = json.loads((tmp_path / "bench_train.json").read_text())["command"]
+    assert command == f"python experiments/bench_train.py {' '.join(argv)} {tmp_path}"
+    assert f"Command: `{command}`" in (tmp_path / "bench_train.md").read_text()

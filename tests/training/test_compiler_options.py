@@ -17,7 +17,6 @@ import pytest
 
 from advisor_jax.agent.config import HParams
 from advisor_jax.training import program
-from advisor_jax.training.devices import place
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import (
     CUBLAS_GEMMS,
@@ -80,17 +79,3 @@ def test_the_training_chunk_compiles_with_its_learners_options(monkeypatch):
     state = init_fn(agent_keys([0]))  # init keeps XLA's defaults
     with pytest.raises(Exception, match="No such compile option"):
         chunk_fn.lower(state, hp, jnp.int32(0)).compile()
-
-
-def test_the_chunk_takes_its_placements_network_layout(monkeypatch):
-    # A population split over devices leaves out the first-layer kernel (program.placement_layout).
-    seen, real = [], program.placement_layout
-
-    def recording(placement, backend=None):
-        seen.append(placement)
-        return real(placement, backend)
-
-    monkeypatch.setattr(program, "placement_layout", recording)
-    placement = place(2, 1)
-    program.population_functions(TINY, placement)
-    assert seen == [placement]
