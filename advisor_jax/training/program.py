@@ -75,9 +75,12 @@ def compiler_options(
       once instead of one launch per step (``results/bench_train_steady/``).
     * bf16: ``CUBLAS_GEMMS``. Left free, XLA's autotuner hands the bf16 matmuls to Triton
       fusions that ran the critic's large GEMMs far below cuBLAS
-      (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``); fp32 learners
-      keep XLA's default, which already gives cuBLAS all their GEMMs
-      (``results/bench_learner_relu_vjp.md``).
+      (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``).
+    * fp32, but for the latency-bound program: ``CUBLAS_GEMMS`` too. XLA's default gave cuBLAS
+      every fp32 GEMM until the learner held its target networks built; then the autotuner
+      moved one of the target critic's to a Triton fusion, and the 128-agent fp32 learner ran
+      1.03× faster without (``results/bench_first_layer_kernel/``, "fp32 with every GEMM on
+      cuBLAS"). The latency-bound fp32 program, not measured that way, keeps XLA's default.
     """
     backend = jax.default_backend() if backend is None else backend
     if backend != "gpu":
@@ -87,7 +90,7 @@ def compiler_options(
         options.update(OVERLAPPING_KERNELS)
         if steady:
             options.update(WHOLE_LOOPS)
-    if precision == "bf16":
+    if precision == "bf16" or not overlap:
         options.update(CUBLAS_GEMMS)
     return options or None
 

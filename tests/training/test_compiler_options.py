@@ -29,11 +29,11 @@ from tests.training.conftest import TINY
 
 @pytest.mark.parametrize(
     ("precision", "backend", "overlap", "steady", "expected"),
-    [("bf16", "gpu", False, False, CUBLAS_GEMMS), ("fp32", "gpu", False, False, None),
+    [("bf16", "gpu", False, False, CUBLAS_GEMMS), ("fp32", "gpu", False, False, CUBLAS_GEMMS),
      ("fp32", "gpu", True, False, OVERLAPPING_KERNELS),  # a small baseline population
      ("fp32", "gpu", True, True, {**OVERLAPPING_KERNELS, **WHOLE_LOOPS}),
      ("bf16", "gpu", True, True, {**OVERLAPPING_KERNELS, **WHOLE_LOOPS, **CUBLAS_GEMMS}),
-     ("fp32", "gpu", False, True, None),  # whole loops only where kernels overlap
+     ("fp32", "gpu", False, True, CUBLAS_GEMMS),  # whole loops only where kernels overlap
      ("bf16", "cpu", True, True, None), ("fp32", "cpu", False, False, None),
      ("bf16", "tpu", True, True, None)],
 )  # fmt: skip
