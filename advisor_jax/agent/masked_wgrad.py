@@ -18,9 +18,10 @@ update, at the device's copy rate, and the learner 1.03× (bf16) / 1.04× (fp32)
 the same updates.
 
 Under ``jax.vmap`` (the population's agents, the twin critics) the kernel runs once over the
-stacked batch, which XLA's partitioner splits along the agents like any batched operation:
-a population sharded over several devices runs each device's agents' kernels on that device,
-no collective between them (``weight_gradient``).
+stacked batch, inside a ``custom_partitioning`` that keeps the leading axis's sharding: a
+population sharded along its agents (the outermost vmap, so the stacked axis's major part)
+runs each device's agents' kernels on that device, no collective between them
+(``weight_gradient``; ``results/bench_multigpu/``).
 
 ``gemm_layers.first_critic_layer`` is the layer with that backward (``jax.custom_vjp``).
 Where the input's gradient is wanted (the actor step's ∇_a Q of Eq. 2) it is computed as
