@@ -10,7 +10,10 @@ script checks, on the default device, ATD3+AfDP at paper sizes (``--small``: tin
   ``--agents`` agents with and without it, compiled as training compiles them: the largest
   difference of any leaf of the final states;
 * **the compiled update**: how many of its custom calls are the kernel, and the library
-  GEMMs beside them (so a reader sees the kernel ran where intended and nowhere else).
+  GEMMs beside them (so a reader sees the kernel ran where intended and nowhere else);
+* **split rows**: the first layer's gradient (random inputs) with the batch rows split as
+  1 agent's twin critics split them (``masked_wgrad.row_splits``) against the unsplit
+  kernel: how many entries differ, and by how much.
 
 Both layouts are the GPU's (``program.network_layout("gpu")``) wherever this runs; off a GPU
 the kernel runs in Pallas's interpreter.
@@ -30,9 +33,9 @@ import sys
 import jax
 import jax.numpy as jnp
 
+from advisor_jax.agent import masked_wgrad
 from advisor_jax.agent.config import HParams, preset
 from advisor_jax.agent.learner import make_learner
-from advisor_jax.agent.masked_wgrad import KERNEL_NAME
 from advisor_jax.agent.replay_buffer import replay_sample
 from advisor_jax.bench import writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
@@ -98,10 +101,33 @@ def update_check(
     return dict(update_difference=_max_diff(*finals)), compiled.as_text()
 
 
+def split_check(precision: str, small: bool = False) -> dict:
+    """The first layer's weight gradient of random inputs ([1000, 24] x [1000, 1008] at
+    paper sizes) with the rows split as for 1 agent's twin critics, against the unsplit
+    kernel."""
+    n, k, m = (40, 24, 72) if small else (1000, 24, 1008)
+    dtype = {"bf16": jnp.bfloat16, "fp32": jnp.float32}[precision]
+    keys = jax.random.split(jax.random.key(4), 3)
+    x, y, g = (jax.random.normal(key, shape, dtype)
+               for key, shape in zip(keys, [(n, k), (n, m), (n, m)], strict=True))  # fmt: skip
+    splits = masked_wgrad.row_splits(2, n, m)
+    one, split = (jax.jit(lambda x, y, g, s=s: masked_wgrad.kernel(x, y, g, splits=s))(x, y, g)
+                  for s in (1, splits))  # fmt: skip
+    differ = one.astype(jnp.float32) != split.astype(jnp.float32)
+    return dict(
+        splits=splits,
+        split_entries_differing=int(differ.sum()),
+        entries=one.size,
+        split_difference=_max_diff(one, split),
+        gradient_scale=_max_diff(one, 0 * one),
+    )
+
+
 def custom_calls(hlo: str) -> dict:
     """Custom-call targets of a compiled HLO text, counted; and how many of them launch the
     kernel (none off a GPU, where Pallas interprets it as ordinary operations)."""
-    kernel = re.compile(r'custom_call_target="__gpu\$xla\.gpu\.triton".*' + KERNEL_NAME)
+    triton = r'custom_call_target="__gpu\$xla\.gpu\.triton".*'
+    kernel = re.compile(triton + masked_wgrad.KERNEL_NAME)
     return dict(
         custom_calls=dict(collections.Counter(re.findall(r'custom_call_target="([^"]+)"', hlo))),
         kernel_calls=sum(bool(kernel.search(line)) for line in hlo.splitlines()),
@@ -115,13 +141,17 @@ def main(argv=None) -> int:
     for precision in args.precision:
         updates, hlo = update_check(precision, args.agents, args.updates, args.small)
         rows.append(dict(precision=precision, **gradient_check(precision, args.small), **updates,
-                         **custom_calls(hlo)))  # fmt: skip
+                         **custom_calls(hlo), **split_check(precision, args.small)))  # fmt: skip
     table = writing.markdown_table(
         ["precision", "one critic step: difference", "the step's largest change",
-         f"{args.updates} updates: difference", "kernel launches", "custom calls"],
+         f"{args.updates} updates: difference", "kernel launches", "custom calls",
+         "rows split: programs per tile", "entries differing", "largest difference",
+         "gradient's scale"],
         [[r["precision"], f"{r['step_difference']:.3g}", f"{r['step_size']:.3g}",
           f"{r['update_difference']:.3g}", r["kernel_calls"],
-          ", ".join(f"{k} × {v}" for k, v in sorted(r["custom_calls"].items()))]
+          ", ".join(f"{k} × {v}" for k, v in sorted(r["custom_calls"].items())),
+          r["splits"], f"{r['split_entries_differing']} of {r['entries']}",
+          f"{r['split_difference']:.3g}", f"{r['gradient_scale']:.3g}"]
          for r in rows],
     )  # fmt: skip
     setup = (

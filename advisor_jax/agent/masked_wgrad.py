@@ -27,6 +27,11 @@ runs each device's agents' kernels on that device, no collective between them
 Where the input's gradient is wanted (the actor step's ∇_a Q of Eq. 2) it is computed as
 before, from the masked gradient, and XLA drops whichever of the two gradients nobody reads.
 
+A program sums the rows of one column tile. Few layers (fewer than 8 agents' twin critics on
+a device) would leave most of a GPU idle, 16 programs at 1 agent, so their rows are split
+over several programs whose fp32 partial sums one small XLA reduction adds (``row_splits``,
+``results/bench_first_layer_kernel/``, "Few agents": the 1-agent step 1.02-1.04× on an H100).
+
 The kernel's tiles never leave the arrays: the last tile of the batch (rows) starts at
 ``n - ROWS`` and zeroes the rows an earlier tile summed (1,000 has no power-of-two divisor
 ≥ 16, the tensor cores' least), and the last tile of the columns starts at ``m - COLS``, so
@@ -49,6 +54,9 @@ ROWS = 32
 """Batch rows per step of the kernel's reduction."""
 COLS = 128
 """Output columns per program."""
+PROGRAMS = 128
+"""The programs a kernel aims for when its layers are few (``row_splits``): about one per
+streaming multiprocessor of an H100 (132)."""
 MIN_TILE = 16
 """The tensor cores' least dimension: smaller layers keep XLA's mask and GEMM."""
 KERNEL_NAME = "masked_weight_gradient"
@@ -59,9 +67,14 @@ def _pow2_floor(n: int) -> int:
     return 1 << (n.bit_length() - 1)
 
 
-def _kernel(x_ref, y_ref, g_ref, out_ref, *, rows: int, cols: int):
+def _kernel(x_ref, y_ref, g_ref, out_ref, *, rows: int, cols: int, splits: int):
     n, m = y_ref.shape
     col0 = jnp.minimum(pl.program_id(0) * cols, m - cols)
+    first, last = 0, pl.cdiv(n, rows)  # row tiles; with splits, this program's share
+    if splits > 1:
+        steps = pl.cdiv(last, splits)
+        first = pl.program_id(1) * steps
+        last = jnp.minimum(first + steps, last)
 
     def step(i, acc):
         start = i * rows
@@ -74,8 +87,11 @@ def _kernel(x_ref, y_ref, g_ref, out_ref, *, rows: int, cols: int):
         return acc + pl_triton.dot(x, masked, trans_a=True)
 
     k = x_ref.shape[1]
-    acc = jax.lax.fori_loop(0, pl.cdiv(n, rows), step, jnp.zeros((k, cols), jnp.float32))
-    out_ref[:, pl.ds(col0, cols)] = acc.astype(out_ref.dtype)
+    acc = jax.lax.fori_loop(first, last, step, jnp.zeros((k, cols), jnp.float32))
+    if splits == 1:  # the gradient itself
+        out_ref[:, pl.ds(col0, cols)] = acc.astype(out_ref.dtype)
+    else:  # this program's fp32 partial sum
+        out_ref[pl.ds(pl.program_id(1), 1), :, pl.ds(col0, cols)] = acc[None]
 
 
 def fits(n: int, k: int, m: int) -> bool:
@@ -84,11 +100,28 @@ def fits(n: int, k: int, m: int) -> bool:
     return min(n, k, m) >= MIN_TILE
 
 
-def kernel(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | None = None):
+def row_splits(batch: int, n: int, m: int) -> int:
+    """How many programs share the batch rows of each column tile (split-K) when ``batch``
+    layers of batch ``n`` and output width ``m`` run as one kernel: enough, in powers of two,
+    for about ``PROGRAMS`` programs, at most one per row tile. 1 from 16 layers up (8 agents'
+    twin critics at the paper's sizes), where the column tiles alone fill a GPU."""
+    col_tiles = pl.cdiv(m, min(COLS, _pow2_floor(m)))
+    row_tiles = pl.cdiv(n, min(ROWS, _pow2_floor(n)))
+    splits = 1
+    while batch * col_tiles * splits * 2 <= PROGRAMS and splits * 2 <= row_tiles:
+        splits *= 2
+    return splits
+
+
+def kernel(
+    x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | None = None, splits: int = 1
+):
     """``xᵀ · where(y > 0, g, 0)`` → ``[k, m]`` in ``y``'s dtype (fp32 accumulation), for
     ``x [n, k]``, ``y`` and ``g`` ``[n, m]``: one Pallas kernel. ``interpret``: run it in
-    Pallas's interpreter (default: off a GPU). ``jax.vmap`` batches it into a grid axis of
-    the same kernel, a custom call XLA's partitioner cannot split: batch with
+    Pallas's interpreter (default: off a GPU). ``splits`` (``row_splits``): programs that
+    share each column tile's rows, each writing an fp32 partial sum that one small XLA
+    reduction adds before the rounding to ``y``'s dtype. ``jax.vmap`` batches it into a grid
+    axis of the same kernel, a custom call XLA's partitioner cannot split: batch with
     ``weight_gradient`` instead."""
     (n, k), m = x.shape, y.shape[1]
     if not fits(n, k, m):
@@ -98,14 +131,24 @@ def kernel(x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | None = No
     k_tile = pl.next_power_of_2(k)  # a tile's sides are powers of two: x gets zero columns
     x = jnp.pad(x.astype(y.dtype), ((0, 0), (0, k_tile - k)))
     rows, cols = min(ROWS, _pow2_floor(n)), min(COLS, _pow2_floor(m))
+    shape = (k_tile, m) if splits == 1 else (splits, k_tile, m)
     out = pl.pallas_call(
-        functools.partial(_kernel, rows=rows, cols=cols),
-        out_shape=jax.ShapeDtypeStruct((k_tile, m), y.dtype),
-        grid=(pl.cdiv(m, cols),),
+        functools.partial(_kernel, rows=rows, cols=cols, splits=splits),
+        out_shape=jax.ShapeDtypeStruct(shape, y.dtype if splits == 1 else jnp.float32),
+        grid=(pl.cdiv(m, cols),) if splits == 1 else (pl.cdiv(m, cols), splits),
         interpret=interpret,
         name=KERNEL_NAME,
     )(x, y, g)
+    if splits > 1:
+        out = out.sum(axis=0).astype(y.dtype)
     return out[:k]
+
+
+def _kernels(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+    """``kernel`` over a leading batch axis, ``[b, n, k]`` → ``[b, k, m]``, its rows split as
+    ``row_splits`` gives for this batch."""
+    (b, n, _), m = x.shape, y.shape[-1]
+    return jax.vmap(functools.partial(kernel, splits=row_splits(b, n, m)))(x, y, g)
 
 
 def _agents_only(sharding: NamedSharding, ndim: int) -> NamedSharding:
@@ -116,7 +159,7 @@ def _agents_only(sharding: NamedSharding, ndim: int) -> NamedSharding:
 
 def _partition(mesh, arg_shapes, result_shape):
     sharding = _agents_only(arg_shapes[0].sharding, 3)
-    return mesh, jax.vmap(kernel), sharding, (sharding,) * 3
+    return mesh, _kernels, sharding, (sharding,) * 3
 
 
 def _infer_sharding(mesh, arg_shapes, result_shape):
@@ -128,8 +171,8 @@ def _split_by_agents(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
     """``kernel`` over a leading batch axis, ``[b, n, k]`` → ``[b, k, m]``. Over several
     devices XLA's partitioner gives each device the kernel of its own rows of that axis (its
     agents), where the kernel's custom call alone would be gathered whole onto every device;
-    on one device it is ``jax.vmap(kernel)`` itself."""
-    return jax.vmap(kernel)(x, y, g)
+    on one device it is ``_kernels`` itself."""
+    return _kernels(x, y, g)
 
 
 _split_by_agents.def_partition(
@@ -165,7 +208,7 @@ def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
     """``xᵀ · where(y > 0, g, 0)`` (``kernel``), whose ``jax.vmap``, once or nested, is one
     kernel over the stacked batch that a population sharded along its agents splits by device
     (``_split_by_agents``)."""
-    return kernel(x, y, g)
+    return _kernels(x[None], y[None], g[None])[0]
 
 
 @weight_gradient.def_vmap

@@ -44,16 +44,42 @@ def test_the_kernel_is_the_masked_weight_gradient(n, k, m):
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 * float(jnp.max(jnp.abs(want))))
 
 
-def test_a_row_summed_twice_or_a_column_left_out_would_show():
+# Rows split over programs: none (as 8+ agents' twin critics run), two, more than one per
+# row tile (an empty share), an uneven last share (1,000 rows are 32 tiles: 11, 11, 10).
+@pytest.mark.parametrize("splits", [1, 2, 3, 64])
+@pytest.mark.parametrize("n, k, m", [(40, 24, 72), (1000, 24, 1008)])
+def test_split_rows_give_the_same_gradient(n, k, m, splits):
+    x, y, g = _inputs(n, k, m, jnp.float32, seed=splits)
+    got = masked_wgrad.kernel(x, y, g, splits=splits)
+    assert got.shape == (k, m) and got.dtype == jnp.float32
+    want = _reference(x, y, g)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4 * float(jnp.max(jnp.abs(want))))
+
+
+@pytest.mark.parametrize("splits", [1, 3])
+def test_a_row_summed_twice_or_a_column_left_out_would_show(splits):
     # All ones: every entry of the gradient counts the batch's rows, n, exactly.
     n, k, m = 40, 24, 72
     ones = jnp.ones((n, k)), jnp.ones((n, m)), jnp.ones((n, m))
-    np.testing.assert_array_equal(masked_wgrad.weight_gradient(*ones), np.full((k, m), n))
+    got = masked_wgrad.kernel(*ones, splits=splits)
+    np.testing.assert_array_equal(got, np.full((k, m), n))
 
 
-def test_bf16_rounds_once_from_an_fp32_sum():
+def test_few_layers_split_their_rows_and_many_do_not():
+    # The paper's first layer, 8 column tiles and 32 row tiles: 1 agent's twin critics get
+    # 8 programs per tile (128 in all), 4 agents' 2, from 8 agents on the tiles alone fill.
+    n, m = 1000, 1008
+    assert [masked_wgrad.row_splits(b, n, m) for b in (1, 2, 8, 16, 256)] == [16, 8, 2, 1, 1]
+    assert masked_wgrad.row_splits(1, 40, 72) == 2  # no more shares than row tiles
+    for batch in (1, 2, 4, 8):
+        programs = batch * 8 * masked_wgrad.row_splits(batch, n, m)
+        assert masked_wgrad.PROGRAMS // 2 < programs <= masked_wgrad.PROGRAMS
+
+
+@pytest.mark.parametrize("splits", [1, 2])
+def test_bf16_rounds_once_from_an_fp32_sum(splits):
     x, y, g = _inputs(64, 24, 128, jnp.bfloat16)
-    got = masked_wgrad.weight_gradient(x, y, g)
+    got = masked_wgrad.kernel(x, y, g, splits=splits)
     assert got.dtype == jnp.bfloat16
     want = _reference(x, y, g)
     np.testing.assert_allclose(got.astype(jnp.float32), want, rtol=2**-7, atol=1e-2)

@@ -16,4 +16,6 @@ def test_a_small_run_reports_parity_and_no_kernel_launch_off_a_gpu(tmp_path):
     assert row["step_difference"] < 1e-3 * row["step_size"]
     assert row["update_difference"] < 1e-4
     assert row["kernel_calls"] == 0  # interpreted on a CPU: ordinary operations, no launch
+    assert row["splits"] == 2 and row["entries"] == 24 * 72  # the small layer's 2 row tiles
+    assert row["split_difference"] <= 1e-5 * row["gradient_scale"]
     assert "| fp32 |" in (tmp_path / "first_layer_kernel.md").read_text()
