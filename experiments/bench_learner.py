@@ -45,7 +45,7 @@ from advisor_jax.training.program import network_layout
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
-    "bf16": "bf16 hidden layers (fp32 parameters, Adam, accumulation)",
+    "bf16": "bf16 hidden layers (fp32 parameters and accumulation; on GPUs Adam's m in bf16)",
 }
 
 

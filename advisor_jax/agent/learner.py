@@ -143,11 +143,6 @@ class Learner(NamedTuple):
     """(state) -> the state without them (``target_nets`` None), as it is stored."""
 
 
-def _adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
-    # Built per call so the learning rate can be a traced (vmapped) hyperparameter.
-    return optax.adam(learning_rate)
-
-
 def _first_critic(critic_params: Any) -> Any:
     return jax.tree.map(lambda x: x[0], critic_params)
 
@@ -167,9 +162,10 @@ def make_learner(
     it for agents with ``clip_q_target`` = 1. None: no clipping whatever the switch says.
     ``layout``: how the networks are computed (``networks.Layout``), which the program that
     runs the learner chooses (``training.program.network_layout``): the twin critics' input
-    layout of all this learner's critics, its fp32 acting critic too; and whether the
-    learner's networks run as ``gemm_layers`` (each hidden layer one GEMM with its bias
-    inside) instead of the flax modules; acting (the Eq. 1 selector's Q) keeps the modules.
+    layout of all this learner's critics, its fp32 acting critic too; whether the learner's
+    networks run as ``gemm_layers`` (each hidden layer one GEMM with its bias inside) instead
+    of the flax modules, acting (the Eq. 1 selector's Q) keeping the modules; and whether a
+    bf16 learner's Adam keeps its first moment in bf16 (``Layout.bf16_first_moment``).
 
     Long: the factory of the learner's closures (init, selector Q, the two steps, the
     three whole updates and the held targets), which share its networks and settings; each
@@ -182,6 +178,10 @@ def make_learner(
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
     per_critic = layout.inputs_per_critic
     actor_net, critic_net = learner_functions(actor, critic, layout)
+    mu_dtype = jnp.bfloat16 if layout.bf16_first_moment and cfg.precision == "bf16" else None
+
+    def adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
+        return optax.adam(learning_rate, mu_dtype=mu_dtype)  # lr: a traced hyperparameter
 
     def build_targets(state: LearnerState) -> tuple[Any, Any]:
         return actor_net.build(state.target_actor), jax.vmap(critic_net.build)(state.target_critic)
@@ -204,8 +204,8 @@ def make_learner(
             target_actor=jax.tree.map(jnp.copy, actor_params),
             target_critic=jax.tree.map(jnp.copy, critic_params),
             # Adam's state (count, μ, ν) does not depend on the learning rate.
-            actor_opt=_adam(1.0).init(actor_params),
-            critic_opt=_adam(1.0).init(critic_params),
+            actor_opt=adam(1.0).init(actor_params),
+            critic_opt=adam(1.0).init(critic_params),
             critic_updates=jnp.int32(0),
             actor_updates=jnp.int32(0),
         )
@@ -241,7 +241,7 @@ def make_learner(
             return jnp.sum(losses), (losses, q)
 
         (_, (losses, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.critic)
-        updates, critic_opt = _adam(hp.lr_critic).update(grads, state.critic_opt, state.critic)
+        updates, critic_opt = adam(hp.lr_critic).update(grads, state.critic_opt, state.critic)
         new_state = state.replace(
             critic=optax.apply_updates(state.critic, updates),
             critic_opt=critic_opt,
@@ -289,7 +289,7 @@ def make_learner(
             actions, batch.advisor_action, grad_q, targets, cfg.advisor_policy
         )
         (grads,) = pullback(dloss)
-        updates, actor_opt = _adam(hp.lr_actor).update(grads, state.actor_opt, state.actor)
+        updates, actor_opt = adam(hp.lr_actor).update(grads, state.actor_opt, state.actor)
         actor_params = optax.apply_updates(state.actor, updates)
         new_state = state.replace(
             actor=actor_params,

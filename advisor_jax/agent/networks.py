@@ -123,9 +123,9 @@ class Critic(nn.Module):
 
 
 class Layout(NamedTuple):
-    """How a learner's networks are computed on its device: the same function and parameters
-    either way, equal to rounding. ``training.program.network_layout`` chooses (both on GPUs,
-    neither on CPUs, whose results then stay bit for bit)."""
+    """How a learner's networks are computed and stored on its device: the same function and
+    parameters either way, equal to rounding. ``training.program.network_layout`` chooses
+    (all on GPUs, none on CPUs, whose results then stay bit for bit)."""
 
     inputs_per_critic: bool = False
     """Each twin critic reads its own copy of the inputs (``apply_critics``)."""
@@ -134,6 +134,10 @@ class Layout(NamedTuple):
     first_layer_kernel: bool = False
     """With ``layers_in_gemm``: the critic's first layer's weight gradient and ReLU mask in one
     kernel (``masked_wgrad``)."""
+    bf16_first_moment: bool = False
+    """A bf16 learner's Adam keeps its first moment in bf16 (``optax.adam``'s ``mu_dtype``):
+    fewer of the optimizer's bytes; the second moment, the parameters and every fp32 learner
+    stay fp32."""
 
 
 MODULES = Layout()

@@ -145,18 +145,24 @@ def _rebuild(stored: dict[str, Any], abstract: Any) -> Any:
 
     Every leaf comes back as an uncommitted array, like the output of a fresh ``init``:
     orbax returns a mix of committed and uncommitted arrays, and jit keys its cache on
-    that, so a resumed run would otherwise recompile its chunk function.
+    that, so a resumed run would otherwise recompile its chunk function. And in the
+    abstract leaf's dtype: a checkpoint written before a state's storage changed (a bf16
+    learner's Adam first moment on GPUs, ``networks.Layout.bf16_first_moment``, was fp32
+    before 2026-11-27) resumes rounded to the program's dtypes.
     """
     leaves, treedef = jax.tree_util.tree_flatten(abstract)
     full = [
-        _uncommitted(stored[f"{i:04d}"]) if leaf.size else jnp.zeros(leaf.shape, leaf.dtype)
+        _uncommitted(stored[f"{i:04d}"], leaf.dtype)
+        if leaf.size
+        else jnp.zeros(leaf.shape, leaf.dtype)
         for i, leaf in enumerate(leaves)
     ]
     return jax.tree_util.tree_unflatten(treedef, full)
 
 
-def _uncommitted(x) -> jax.Array:
-    return jnp.asarray(np.asarray(x))
+def _uncommitted(x, dtype=None) -> jax.Array:
+    """``x`` as an uncommitted JAX array, in ``dtype`` (None: its own)."""
+    return jnp.asarray(np.asarray(x).astype(dtype or np.asarray(x).dtype, copy=False))
 
 
 def save_step(directory: str | Path, step: int, state: Any, run: dict | None = None) -> None:

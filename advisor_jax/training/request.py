@@ -110,8 +110,9 @@ class TrainArgs:
     Its quality knobs are hyperparameters: --grid advisor_random=0,0.2,0.4."""
     precision: Literal["fp32", "bf16"] = "fp32"
     """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
-    activations with fp32 parameters, Adam and accumulation (faster on GPUs with bf16
-    tensor cores: results/bench_learner_cublas/; acting is always fp32). Recommended for
+    activations with fp32 parameters, Adam and accumulation (on GPUs Adam's first moment
+    in bf16; faster on GPUs with bf16 tensor cores: results/bench_learner_cublas/; acting is
+    always fp32). Recommended for
     GPU sweeps of these agents: 16 paired seeds of ATD3+AfDP and of DDPG at --preset
     stable learn the same in bf16 (results/precision_study.md); other agent types and
     presets are not checked."""
