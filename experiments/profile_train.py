@@ -113,7 +113,8 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1, program="
     start), placed as training places it (padded and sharded on the agent axis); ``program``:
     the chunk's (``program.PROGRAMS``; "auto": training's choice for the placement)."""
     placement = place(n_agents, devices)
-    program = choose_program(placement) if program == "auto" else program
+    if program == "auto":
+        program = choose_program(placement, precision=cfg.agent.precision)
     _, init_fn, chunk_fn = population_functions(cfg, placement, program)
     hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
     hp = put(hp, placement)

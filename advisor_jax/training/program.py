@@ -8,9 +8,9 @@ leave open:
 * which trainer: the paper's agents' (``train.make_train``) or a baseline's, whose prior
   phases wrap the same core (``training/prior/``);
 * the chunk's program (``PROGRAMS``, ``choose_program``): the general program, the steady
-  one (``train.make_train``'s ``steady``: sharded populations on GPUs) or the latency-bound
-  one (the steady program with overlapping kernels, for at most ``LATENCY_BOUND_AGENTS``
-  agents per GPU);
+  one (``train.make_train``'s ``steady``: sharded populations on GPUs, and bf16 populations
+  on one GPU whose memory holds it) or the latency-bound one (the steady program with
+  overlapping kernels, for at most ``LATENCY_BOUND_AGENTS`` agents per GPU);
 * how the learner's networks are computed (``network_layout``): the twin critics' input
   layout (``twin_inputs_per_critic``), each hidden layer as one GEMM
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
@@ -36,8 +36,13 @@ LATENCY_BOUND_AGENTS = 32
 """Populations of at most this many agents per device run, on GPUs, the latency-bound
 program: the chunk's steady program compiled with overlapping kernels and whole-loop graphs
 (``compiler_options``). Its kernels are too small to fill a GPU one at a time; larger
-populations fill it and keep the general program, which needs less memory
-(``results/bench_train_steady/``)."""
+populations fill it (``results/bench_train_steady/``)."""
+
+STEADY_BF16_BYTES_PER_AGENT = int(1.25 * 45.84 / 512 * 2**30)
+"""What one ``paper``-size bf16 agent is given of a GPU's memory when the steady program is
+chosen on one GPU (``steady_fits``): the process's peak at 512 agents on an H100, 45.84 GiB
+(the general program's: 32.44), per agent, with a quarter more as margin
+(``results/bench_train_programs/``)."""
 
 CUBLAS_GEMMS = {"xla_gpu_enable_triton_gemm": False}
 """XLA debug options that leave every GEMM to cuBLAS (no Triton GEMM fusions)."""
@@ -167,9 +172,26 @@ def latency_bound(placement: Placement | None, backend: str | None = None) -> bo
     return placement.n_padded // placement.n_devices <= LATENCY_BOUND_AGENTS
 
 
-def choose_program(placement: Placement | None, backend: str | None = None) -> str:
-    """The chunk's program (``PROGRAMS``) for ``placement``'s population on ``backend``
-    (JAX's default when None):
+def steady_fits(placement: Placement, memory_bytes: int | None = None) -> bool:
+    """Whether one device holds ``placement``'s population in the steady program at
+    ``STEADY_BF16_BYTES_PER_AGENT`` per agent within ``memory_bytes`` (None: what JAX may
+    allocate on the first device, its ``memory_stats()["bytes_limit"]``; unknown: no)."""
+    if memory_bytes is None:
+        stats = jax.devices()[0].memory_stats() or {}
+        memory_bytes = stats.get("bytes_limit")
+    if not memory_bytes:
+        return False
+    return placement.n_padded * STEADY_BF16_BYTES_PER_AGENT <= memory_bytes
+
+
+def choose_program(
+    placement: Placement | None,
+    backend: str | None = None,
+    precision: str = "fp32",
+    memory_bytes: int | None = None,
+) -> str:
+    """The chunk's program (``PROGRAMS``) for ``placement``'s population of ``precision``
+    learners (``AgentConfig.precision``) on ``backend`` (JAX's default when None):
 
     * latency-bound where it pays (``latency_bound``: at most ``LATENCY_BOUND_AGENTS`` per
       GPU);
@@ -180,14 +202,23 @@ def choose_program(placement: Placement | None, backend: str | None = None) -> s
       1.95× / 3.70× one GPU instead of 1.26× / 1.70× (``results/multigpu_hlo.md``,
       ``results/bench_multigpu.md``). It costs memory: 46 GiB for 512 agents on one GPU
       against the general program's 34;
-    * else the general program: CPUs (whose results stay bit for bit what they were) and a
-      larger population on one GPU, where the steady program is 4 % faster at 256 and 512
-      bf16 agents but needs that third more memory, which would shrink the largest
-      population that fits."""
+    * steady for a larger bf16 population on one GPU whose memory holds it (``steady_fits``,
+      ``memory_bytes`` as there): on one H100 (jax 0.11.2, two commands each, alternating)
+      the steady program ran 1.02–1.03× the general one at 64 bf16 agents, 1.04× at 256 and
+      1.03× at 512 (``results/bench_train_programs/``), with that third more memory;
+    * else the general program: CPUs (whose results stay bit for bit what they were), fp32
+      learners on one GPU (the steady program was 0.96× at 64 fp32 agents on an H200 before
+      the held target networks, ``results/bench_train_programs/``), and populations too
+      large for the steady program's memory, so that the largest population that fits
+      stays as large."""
     backend = jax.default_backend() if backend is None else backend
     if latency_bound(placement, backend):
         return "latency-bound"
-    if backend == "gpu" and placement is not None and placement.n_devices > 1:
+    if backend != "gpu" or placement is None:
+        return "general"
+    if placement.n_devices > 1:
+        return "steady"
+    if precision == "bf16" and steady_fits(placement, memory_bytes):
         return "steady"
     return "general"
 
@@ -198,14 +229,15 @@ def population_functions(
     """(trainer, jit(vmap(init)), jit(vmap(chunk))) for ``cfg``: the population's program.
 
     ``program``: one of ``PROGRAMS``; None or "auto": as ``choose_program`` picks it for
-    ``placement``.
+    ``placement`` and the learner's precision.
 
     With a multi-device ``placement`` the agent axis of keys, state, hyperparameters and
     metrics is sharded over its mesh and the step index replicated (``devices``); inputs
     must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
     functions (jit compiles on their first call); callers that train several populations
     of one config keep and reuse them."""
-    program = choose_program(placement) if program in (None, "auto") else program
+    if program in (None, "auto"):
+        program = choose_program(placement, precision=cfg.agent.precision)
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
     overlap = program == "latency-bound"

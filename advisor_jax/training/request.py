@@ -127,11 +127,11 @@ class TrainArgs:
     chunk_steps: int | None = None
     """Environment steps per jitted chunk (progress/checkpoint granularity)."""
     program: Literal["auto", "general", "steady", "latency-bound"] = "auto"
-    """The chunk's compiled program (training/program.py): auto picks it from the population
-    and its devices; general (a conditional per step for warm-up and the TD3 delay),
-    steady (no conditional in the loop past warm-up) or latency-bound (the steady program
-    with overlapping kernels: more memory). They compute the same steps up to float
-    rounding; recorded in run.json when not auto."""
+    """The chunk's compiled program (training/program.py): auto picks it from the population,
+    its devices, their memory and the precision; general (a conditional per step for warm-up
+    and the TD3 delay), steady (no conditional in the loop past warm-up) or latency-bound
+    (the steady program with overlapping kernels: more memory). They compute the same steps
+    up to float rounding; recorded in run.json when not auto."""
     out: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
     """Run directory (default: runs/<agent>-<preset>-<UTC time>). Held exclusively while
     the run trains: a second run or --resume into it is refused."""

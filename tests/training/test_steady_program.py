@@ -88,7 +88,7 @@ def test_only_small_populations_on_gpus_are_latency_bound(n_padded, n_devices, b
 @pytest.mark.parametrize(
     ("n_padded", "n_devices", "backend", "expected"),
     [(LATENCY_BOUND_AGENTS, 1, "gpu", "latency-bound"),
-     (LATENCY_BOUND_AGENTS + 1, 1, "gpu", "general"),  # one GPU: the general program's memory
+     (LATENCY_BOUND_AGENTS + 1, 1, "gpu", "general"),  # one GPU, fp32: the general program
      (2 * LATENCY_BOUND_AGENTS, 2, "gpu", "latency-bound"),
      (2 * LATENCY_BOUND_AGENTS + 2, 2, "gpu", "steady"),  # sharded: no all-gathers in the loop
      (512, 4, "gpu", "steady"),
@@ -99,6 +99,26 @@ def test_the_program_is_chosen_from_the_population_and_its_devices(
     n_padded, n_devices, backend, expected
 ):
     assert program.choose_program(_placement(n_padded, n_devices), backend) == expected
+
+
+H100 = int(0.75 * 81559 * 2**20)  # what JAX may allocate of an H100 80GB by default
+
+
+@pytest.mark.parametrize(
+    ("n_padded", "precision", "memory_bytes", "expected"),
+    [(64, "bf16", H100, "steady"), (512, "bf16", H100, "steady"),  # measured faster, fits
+     (LATENCY_BOUND_AGENTS, "bf16", H100, "latency-bound"),
+     (1024, "bf16", H100, "general"),  # would not fit: the general program's largest stays
+     (256, "bf16", int(0.75 * 24e9), "general"),  # a 24 GB card: the general one's 16 GiB
+     (64, "fp32", H100, "general"),  # fp32: the steady program was slower
+     (64, "bf16", None, "general")],  # memory unknown (these CPU devices report none)
+)  # fmt: skip
+def test_one_gpus_bf16_population_gets_the_steady_program_where_its_memory_holds_it(
+    n_padded, precision, memory_bytes, expected
+):
+    placement = _placement(n_padded, 1)
+    assert program.choose_program(placement, "gpu", precision, memory_bytes) == expected
+    assert program.choose_program(placement, "cpu", precision, memory_bytes) == "general"
 
 
 @pytest.mark.parametrize(
