@@ -119,7 +119,7 @@ def split_check(precision: str, small: bool = False) -> dict:
         split_entries_differing=int(differ.sum()),
         entries=one.size,
         split_difference=_max_diff(one, split),
-        gradient_scale=_max_diff(one, 0 * one),
+        gradient_scale=float(jnp.max(jnp.abs(one.astype(jnp.float32)))),
     )
 
 

@@ -162,7 +162,7 @@ def _rebuild(stored: dict[str, Any], abstract: Any) -> Any:
 
 def _uncommitted(x, dtype=None) -> jax.Array:
     """``x`` as an uncommitted JAX array, in ``dtype`` (None: its own)."""
-    return jnp.asarray(np.asarray(x).astype(dtype or np.asarray(x).dtype, copy=False))
+    return jnp.asarray(np.asarray(x, dtype=dtype))
 
 
 def save_step(directory: str | Path, step: int, state: Any, run: dict | None = None) -> None:

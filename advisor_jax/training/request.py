@@ -112,10 +112,9 @@ class TrainArgs:
     """Compute precision of the learner's hidden layers: fp32, or bf16 matmul inputs and
     activations with fp32 parameters, Adam and accumulation (on GPUs Adam's first moment
     in bf16; faster on GPUs with bf16 tensor cores: results/bench_learner_cublas/; acting is
-    always fp32). Recommended for
-    GPU sweeps of these agents: 16 paired seeds of ATD3+AfDP and of DDPG at --preset
-    stable learn the same in bf16 (results/precision_study.md); other agent types and
-    presets are not checked."""
+    always fp32). Recommended for GPU sweeps of these agents: 16 paired seeds of ATD3+AfDP
+    and of DDPG at --preset stable learn the same in bf16 (results/precision_study.md);
+    other agent types and presets are not checked."""
     batch_size: int | None = None
     """Minibatch size override."""
     buffer_size: int | None = None
