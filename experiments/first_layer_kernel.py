@@ -88,11 +88,11 @@ def update_check(
 
     def loop(learner):
         def run(state, replay):
-            state = learner.hold_targets(state)
+            state = learner.hold(state)
             for u in range(n_updates):
                 k_sample, k_critic = jax.random.split(jax.random.key(10 + u))
                 state, _, _ = learner.update(state, replay, k_sample, k_critic, HParams(), u)
-            return learner.drop_targets(state)
+            return learner.release(state)
 
         return jax.jit(jax.vmap(run), compiler_options=compiler_options(precision))
 

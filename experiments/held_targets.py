@@ -1,8 +1,8 @@
-"""The learner's held target networks (``Learner.hold_targets``): same updates, and their memory.
+"""The learner's held target networks (``Learner.hold``): same updates, and their memory.
 
 With each hidden layer one GEMM (``agent/gemm_layers.py``, GPUs), a training chunk holds the
 target networks' augmented matrices built once per soft update instead of building them in
-every critic step (``program.holds_targets``). This script checks the two things that
+every critic step (``program.holds_networks``). This script checks the two things that
 change hands, on the default device:
 
 * **parity**: ``--updates`` updates (the delay's actor steps among them) of ``--agents``
@@ -57,11 +57,11 @@ def parity(precision: str, n_agents: int, n_updates: int, small: bool) -> dict:
     )
 
     def run(state, replay, hold: bool):
-        state = learner.hold_targets(state) if hold else state
+        state = learner.hold(state) if hold else state
         for u in range(n_updates):
             k_sample, k_critic = jax.random.split(jax.random.key(10 + u))
             state, _, _ = learner.update(state, replay, k_sample, k_critic, HParams(), u)
-        return learner.drop_targets(state)
+        return learner.release(state)
 
     init = jax.jit(jax.vmap(learner.init))(keys)
     options = compiler_options(precision)

@@ -8,8 +8,8 @@ each, on the evaluation both share), and TREATMENT − CONTROL in success, seed 
 arena, with the 95 % t interval of the mean difference (``stats.paired_difference``).
 
     python experiments/paired_runs.py results/table1_stable/run_data/ATD3_AfDP \\
-        results/precision_study/run_data/atd3_afdp_stable_gemm_layers_fp32 \\
-        --out results/precision_study/gemm_layers_fp32
+        results/precision_study/run_data/atd3_afdp_stable_held_critics_fp32 \\
+        --out results/precision_study/held_critics_fp32
 
 Writes ``paired.md`` and ``paired.json`` into ``--out``; refuses runs whose settings,
 seeds or evaluation episodes differ.

@@ -213,6 +213,14 @@ def critic_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
     return [*matrices, _head_matrix(p["q"], matrices[-1].shape[1])]
 
 
+def critic_tied_rows(params: Any) -> tuple[int, int, int]:
+    """Where ``critic_matrices`` puts the action's kernel twice: (layer 1, its first row, the
+    action's size): rows ``first + 2j`` hold ``K_a[j]`` and ``first + 2j + 1`` ``-K_a[j]``,
+    after the state layer's outputs."""
+    p = params["params"]
+    return 1, p["state"]["kernel"].shape[-1], p["hidden_0"]["kernel"]["action"].shape[-2]
+
+
 def critic_forward(
     matrices: list[jax.Array], obs: jax.Array, action: jax.Array, first_layer_kernel: bool = False
 ) -> jax.Array:

@@ -61,15 +61,16 @@ metrics then include ``q/clipped``, the fraction of the batch's targets the clip
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import optax
-from flax import struct
 
+from advisor_jax.agent import held_critics
 from advisor_jax.agent.config import AgentConfig, HParams
 from advisor_jax.agent.diagnostics import actor_diagnostics
+from advisor_jax.agent.learner_state import Learner, LearnerState, Metrics, all_finite, nan_like
 from advisor_jax.agent.networks import (
     MODULES,
     Layout,
@@ -91,56 +92,6 @@ from advisor_jax.agent.update_rules import (
     smoothed_target_actions,
     soft_update,
 )
-
-Metrics = dict[str, jax.Array]
-
-
-@struct.dataclass
-class LearnerState:
-    actor: Any  # φ
-    critic: Any  # θ, stacked on a leading axis of n_critics (1 or 2)
-    target_actor: Any  # φ^T
-    target_critic: Any  # θ^T, same layout as ``critic``
-    actor_opt: Any  # optax Adam state of φ (m in bf16: Layout.bf16_first_moment)
-    critic_opt: Any  # optax Adam state of θ (likewise)
-    critic_updates: jax.Array  # int32, t of Alg. A3
-    actor_updates: jax.Array  # int32
-    target_nets: Any = None
-    """(target actor, target critics) as the learner's networks compute them
-    (``networks.NetworkFunctions.build``: ``gemm_layers``' augmented matrices), built once per
-    soft update instead of once per critic step. Held only inside a training chunk
-    (``Learner.hold_targets`` at its start, ``drop_targets`` at its end), so that a stored
-    state (a chunk's input and output, a checkpoint) is the same whatever the device; None
-    there, and where the flax modules compute (whose build is the parameters themselves)."""
-
-
-class Learner(NamedTuple):
-    init: Callable[[jax.Array], LearnerState]
-    """(key) -> LearnerState: He init, targets = copies (Alg. 2 step 4, Alg. A3 step 5)."""
-    q_select: Callable[[Any, jax.Array, jax.Array], jax.Array]
-    """(critic params, obs [..., 20], action [..., 2]) -> Q [...] for the Eq. (1) selector:
-    the min over the critics (Alg. A2 steps 11-12); Q itself for one critic."""
-    critic_step: Callable[[LearnerState, Transition, jax.Array, HParams], tuple[Any, Metrics]]
-    """(state, batch, key, hp) -> (state, metrics): one critic update."""
-    actor_step: Callable[..., tuple[Any, Metrics]]
-    """(state, batch, hp, episode=0) -> (state, metrics): one actor update and the soft update
-    of all targets; ``episode`` (episodes completed) gates the AfP replacement by N_P."""
-    update: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, update_index, episode=0) -> (state,
-    metrics, nonfinite): one whole update, its delayed actor step decided from
-    ``update_index`` (see ``make_learner``)."""
-    update_with_actor: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
-    that takes the actor step, with no conditional."""
-    update_critic_only: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
-    that skips it, with no conditional."""
-    hold_targets: Callable[[LearnerState], LearnerState]
-    """(state) -> the state holding its target networks built (``LearnerState.target_nets``;
-    unchanged where the flax modules compute): the critic steps that follow read them, and
-    every soft update builds them again. The same updates (bit for bit under XLA's defaults)."""
-    drop_targets: Callable[[LearnerState], LearnerState]
-    """(state) -> the state without them (``target_nets`` None), as it is stored."""
 
 
 def _first_critic(critic_params: Any) -> Any:
@@ -179,18 +130,34 @@ def make_learner(
     per_critic = layout.inputs_per_critic
     actor_net, critic_net = learner_functions(actor, critic, layout)
     mu_dtype = jnp.bfloat16 if layout.bf16_first_moment and cfg.precision == "bf16" else None
+    holds_critics = layout.held_critics and layout.layers_in_gemm
+    critics_shape = jax.eval_shape(lambda: init_critics(critic, jax.random.key(0), cfg.n_critics))
+    one_critic = jax.eval_shape(lambda: _first_critic(init_critics(critic, jax.random.key(0), 1)))
+    structure = held_critics.structure(one_critic) if holds_critics else None
 
     def adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
         return optax.adam(learning_rate, mu_dtype=mu_dtype)  # lr: a traced hyperparameter
 
     def build_targets(state: LearnerState) -> tuple[Any, Any]:
-        return actor_net.build(state.target_actor), jax.vmap(critic_net.build)(state.target_critic)
+        critics = None if state.held else jax.vmap(critic_net.build)(state.target_critic)
+        return actor_net.build(state.target_actor), critics
 
-    def hold_targets(state: LearnerState) -> LearnerState:
-        return state.replace(target_nets=build_targets(state)) if layout.layers_in_gemm else state
+    def hold(state: LearnerState) -> LearnerState:
+        if not layout.layers_in_gemm:
+            return state
+        if holds_critics:
+            held = held_critics.hold(
+                state.critic, state.target_critic, state.critic_opt, structure, critic.dtype
+            )
+            state = state.replace(held=held, critic=None, target_critic=None, critic_opt=None)
+        return state.replace(target_nets=build_targets(state))
 
-    def drop_targets(state: LearnerState) -> LearnerState:
-        return state.replace(target_nets=None)
+    def release(state: LearnerState) -> LearnerState:
+        state = state.replace(target_nets=None)
+        if state.held is None:
+            return state
+        critic_params, target, opt = held_critics.release(state.held, critics_shape, structure)
+        return state.replace(critic=critic_params, target_critic=target, critic_opt=opt, held=None)
 
     def init(key: jax.Array) -> LearnerState:
         key_actor, key_critic = jax.random.split(key)
@@ -210,15 +177,33 @@ def make_learner(
             actor_updates=jnp.int32(0),
         )
 
-    def q_select(critic_params: Any, obs: jax.Array, action: jax.Array) -> jax.Array:
-        q = apply_critics(critic_fp32.apply, critic_params, obs, action, per_critic)
+    def q_select(state: LearnerState, obs: jax.Array, action: jax.Array) -> jax.Array:
+        if state.held is not None:
+            return jnp.min(held_critics.q_values(state.held, obs, action, per_critic), axis=0)
+        q = apply_critics(critic_fp32.apply, state.critic, obs, action, per_critic)
         return jnp.min(q, axis=0)
+
+    def critic_gradient(state: LearnerState, loss_fn: Callable):
+        """(loss_fn's value and aux, θ's gradient, θ, its Adam state, the gradient's norm):
+        differentiated with respect to what the critics' GEMMs read, then pulled back to θ
+        through the build or, held, onto the held matrices (``held_critics.gradient``)."""
+        if state.held is not None:
+            value, d_nets = jax.value_and_grad(loss_fn, has_aux=True)(state.held.online_nets())
+            grads = held_critics.gradient(d_nets, structure)
+            norm = held_critics.global_norm(grads, structure)
+            return value, grads, state.held.online, state.held.opt, norm
+        nets, pullback = jax.vjp(jax.vmap(critic_net.build), state.critic)
+        value, d_nets = jax.value_and_grad(loss_fn, has_aux=True)(nets)
+        (grads,) = pullback(d_nets)
+        return value, grads, state.critic, state.critic_opt, optax.global_norm(grads)
 
     def critic_step(
         state: LearnerState, batch: Transition, key: jax.Array, hp: HParams
     ) -> tuple[LearnerState, Metrics]:
-        held = state.target_nets is not None  # static: the state's structure
-        target_actor, target_critics = state.target_nets if held else build_targets(state)
+        built = state.target_nets is not None  # static: the state's structure
+        target_actor, target_critics = state.target_nets if built else build_targets(state)
+        if state.held is not None:
+            target_critics = state.held.target_nets()
         next_actions = actor_net.forward(target_actor, batch.next_obs)  # [n, 2]
         if cfg.twin:
             next_actions = smoothed_target_actions(
@@ -234,35 +219,40 @@ def make_learner(
             clipped = jnp.mean((bounded != targets).astype(jnp.float32))
             targets = bounded
 
-        def loss_fn(params):
+        def loss_fn(nets):
             # [n_critics, n]
-            q = apply_critics(critic_net.apply, params, batch.obs, batch.action, per_critic)
+            q = apply_critics(critic_net.forward, nets, batch.obs, batch.action, per_critic)
             losses = critic_losses(q, targets)
             return jnp.sum(losses), (losses, q)
 
-        (_, (losses, q)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.critic)
-        updates, critic_opt = adam(hp.lr_critic).update(grads, state.critic_opt, state.critic)
-        new_state = state.replace(
-            critic=optax.apply_updates(state.critic, updates),
-            critic_opt=critic_opt,
-            critic_updates=state.critic_updates + 1,
-        )
+        (_, (losses, q)), grads, params, opt, norm = critic_gradient(state, loss_fn)
+        updates, opt = adam(hp.lr_critic).update(grads, opt, params)
+        params = optax.apply_updates(params, updates)
+        if state.held is None:
+            new_state = state.replace(critic=params, critic_opt=opt)
+        else:  # in bf16 the copy the GEMMs read is written in Adam's pass
+            copy = held_critics.copies(params, critic.dtype)
+            new_state = state.replace(held=state.held._replace(online=params, opt=opt,
+                                                               online_copy=copy))  # fmt: skip
         metrics = {
             "loss/critic": jnp.mean(losses),
             "q/mean": jnp.mean(q),
             "q/target": jnp.mean(targets),
             "q/clipped": clipped,
-            "grad_norm/critic": optax.global_norm(grads),
+            "grad_norm/critic": norm,
         }
-        return new_state, metrics
+        return new_state.replace(critic_updates=state.critic_updates + 1), metrics
 
     def actor_step(
         state: LearnerState, batch: Transition, hp: HParams, episode: jax.Array | int = 0
     ) -> tuple[LearnerState, Metrics]:
-        q1_params = _first_critic(state.critic)
+        if state.held is None:
+            q1_nets = critic_net.build(_first_critic(state.critic))
+        else:
+            q1_nets = _first_critic(state.held.online_nets())
 
         def q1(obs, action):
-            return critic_net.apply(q1_params, obs, action)
+            return critic_net.forward(q1_nets, obs, action)
 
         # One actor forward; the loss is differentiated w.r.t. the actions and pulled back.
         actions, pullback = jax.vjp(lambda p: actor_net.apply(p, batch.obs), state.actor)
@@ -295,11 +285,19 @@ def make_learner(
             actor=actor_params,
             actor_opt=actor_opt,
             target_actor=soft_update(state.target_actor, actor_params, hp.tau),
-            target_critic=soft_update(state.target_critic, state.critic, hp.tau),
             actor_updates=state.actor_updates + 1,
         )
-        if state.target_nets is not None:
-            new_state = hold_targets(new_state)  # the soft update changed them
+        if state.held is None:
+            new_state = new_state.replace(
+                target_critic=soft_update(state.target_critic, state.critic, hp.tau)
+            )
+        else:  # the structure's entries stay exact: τ·1 + (1 - τ)·1 rounds to 1 (and so 0, ±)
+            target = soft_update(state.held.target, state.held.online, hp.tau)
+            copy = held_critics.copies(target, critic.dtype)
+            new_state = new_state.replace(held=state.held._replace(target=target,
+                                                                   target_copy=copy))  # fmt: skip
+        if state.target_nets is not None:  # the soft update changed them
+            new_state = new_state.replace(target_nets=build_targets(new_state))
         metrics = {
             "loss/actor": loss,
             "advisor/replaced": jnp.mean(replaced.astype(jnp.float32)),
@@ -319,7 +317,7 @@ def make_learner(
         return state, nan_like(jax.eval_shape(actor_step, state, batch, hp, episode)[1])
 
     def finish(state, critic_metrics, actor_metrics, took_actor):
-        nonfinite = ~_all_finite(critic_metrics) | (took_actor & ~_all_finite(actor_metrics))
+        nonfinite = ~all_finite(critic_metrics) | (took_actor & ~all_finite(actor_metrics))
         return state, {**critic_metrics, **actor_metrics}, nonfinite
 
     def update(
@@ -381,20 +379,6 @@ def make_learner(
         update=update,
         update_with_actor=update_with_actor,
         update_critic_only=update_critic_only,
-        hold_targets=hold_targets,
-        drop_targets=drop_targets,
+        hold=hold,
+        release=release,
     )
-
-
-def nan_like(shapes: Any) -> Any:
-    """NaN (floats) or zero (integers) arrays of the given shapes: "not computed"."""
-    fill = lambda s: jnp.full(  # noqa: E731
-        s.shape, jnp.nan if jnp.issubdtype(s.dtype, jnp.floating) else 0, s.dtype
-    )
-    return jax.tree.map(fill, shapes)
-
-
-def _all_finite(metrics: Metrics) -> jax.Array:
-    """Whether every loss, Q estimate and gradient norm is finite (``diag/`` may be NaN)."""
-    values = [v for name, v in metrics.items() if not name.startswith("diag/")]
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in values]))

@@ -138,6 +138,9 @@ class Layout(NamedTuple):
     """A bf16 learner's Adam keeps its first moment in bf16 (``optax.adam``'s ``mu_dtype``):
     fewer of the optimizer's bytes; the second moment, the parameters and every fp32 learner
     stay fp32."""
+    held_critics: bool = False
+    """With ``layers_in_gemm``: through a training chunk the critics' augmented matrices are
+    their parameters, so that no step builds them (``held_critics``)."""
 
 
 MODULES = Layout()

@@ -10,7 +10,7 @@ from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.contract import spec
-from advisor_jax.training.program import compiler_options, holds_targets, network_layout
+from advisor_jax.training.program import compiler_options, holds_networks, program_layout
 
 SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=4096, batch_size=128)  # fmt: skip
@@ -27,9 +27,10 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
     kernels and a whole-loop graph. Timed alone that way the update is not faster
     (``results/bench_train_steady/``): the program pays in the full step, where the
     collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
-    learner = make_learner(cfg, layout=network_layout())  # as training's
     hp = HParams()
     steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
+    program = "latency-bound" if steady else "general"
+    learner = make_learner(cfg, layout=program_layout(program, cfg.precision))  # as training's
 
     def one_agent(learner_state, replay, key):
         def update(carry, u, update_fn=None):
@@ -50,11 +51,11 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
         body, starts = (
             (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
         )
-        if holds_targets("latency-bound" if steady else "general"):  # as training's program
-            learner_state = learner.hold_targets(learner_state)
+        if holds_networks(program):  # as training's program
+            learner_state = learner.hold(learner_state)
         carry = (learner_state, key)
         (learner_state, _), _ = jax.lax.scan(body, carry, starts)
-        return learner.drop_targets(learner_state)
+        return learner.release(learner_state)
 
     options = compiler_options(cfg.precision, overlap=steady, steady=steady)  # as training's
     return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)

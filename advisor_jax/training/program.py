@@ -14,7 +14,9 @@ leave open:
 * how the learner's networks are computed (``network_layout``): the twin critics' input
   layout (``twin_inputs_per_critic``), each hidden layer as one GEMM
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
-  (``holds_targets``), and the critic's first-layer kernel (``agent/masked_wgrad.py``);
+  (``holds_networks``) and whose critics, for fp32 learners in the general program, it holds
+  as the matrices the GEMMs read (``holds_critics``, ``program_layout``), and the critic's
+  first-layer kernel (``agent/masked_wgrad.py``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
 
@@ -138,9 +140,27 @@ def network_layout(backend: str | None = None) -> Layout:
                   bf16_first_moment=gemm)  # fmt: skip
 
 
-def holds_targets(program: str) -> bool:
+def holds_critics(program: str, precision: str) -> bool:
+    """Whether the chunk's ``program`` holds its ``precision`` learners' critics as their GEMM
+    layers' matrices (``Layout.held_critics``, ``agent/held_critics.py``): no matrix build in
+    the loop, Adam and the soft update on the matrices. fp32 learners in the general program:
+    one H100, jax 0.11.2, against the tree before in one command, twice, the 128-agent fp32
+    learner 1.04-1.05× and the 64-agent fp32 step 1.01×; bf16's learner gained 1.02× but its
+    64-agent step, the steady program, ran 0.99× (``results/bench_held_critics/``)."""
+    return program == "general" and precision == "fp32"
+
+
+def program_layout(program: str, precision: str, backend: str | None = None) -> Layout:
+    """``network_layout`` for the chunk's ``program`` and the learners' ``precision``: with the
+    critics held where ``holds_critics`` says (only with ``layers_in_gemm``)."""
+    layout = network_layout(backend)
+    held = layout.layers_in_gemm and holds_critics(program, precision)
+    return layout._replace(held_critics=held)
+
+
+def holds_networks(program: str) -> bool:
     """Whether the chunk's ``program`` (one of ``PROGRAMS``) has its learner hold the target
-    networks built (``Learner.hold_targets``; only with ``layers_in_gemm``): once per soft
+    networks built (``Learner.hold``; only with ``layers_in_gemm``): once per soft
     update instead of once per critic step, the same updates. Every program but
     the latency-bound one: one H100, jax 0.11.2, against the tree before in one command, the
     64-agent bf16 step ran 1.05× (the 128-agent learner 1.04×), fp32 1.00×, and the 1-agent
@@ -241,13 +261,13 @@ def population_functions(
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
     overlap = program == "latency-bound"
-    layout = network_layout()
+    layout = program_layout(program, cfg.agent.precision)
     # The agent axis carries the mesh axis's name: a collective over it inside the step
     # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
     # written; tests/training/test_collectives.py injects one to show that its check of the
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
-        trainer = make_train(cfg, program != "general", layout, holds_targets(program))
+        trainer = make_train(cfg, program != "general", layout, holds_networks(program))
         chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
     else:  # LfD, MCP+MF: the gate from every agent but the padding ones, unbatched
         baseline = make_prior_program(cfg, layout)

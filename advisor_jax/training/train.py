@@ -283,15 +283,15 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
 
 
 def make_train(
-    cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES, hold_targets: bool = True
+    cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES, hold: bool = True
 ) -> Trainer:
     """The paper's agents' program (static config): the core's steps scanned into chunks.
 
     ``steady``: also compile the chunk's steady program, chosen per chunk (module
     docstring; ``program.latency_bound`` decides where it pays). It is only built where it
     exists: one update per step or no delay, and chunks a whole number of delay periods.
-    ``hold_targets``: a chunk holds the learner's target networks built (``Learner.hold_targets``,
-    the same updates; ``program.holds_targets`` decides where it pays)."""
+    ``hold``: a chunk holds the learner's built targets and, where its layout says, critics
+    (``Learner.hold``; ``program.holds_networks`` decides where it pays)."""
     core = make_core(cfg, layout)
     agent, learner = cfg.agent, core.learner
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
@@ -307,8 +307,8 @@ def make_train(
         obs = state.env.obs  # [E, 20]
         actor_action, adv_action, memory = core.act(state, obs, hp)
         if agent.advisor_data:
-            q_actor = learner.q_select(state.learner.critic, obs, actor_action)  # [E]
-            q_advisor = learner.q_select(state.learner.critic, obs, adv_action)
+            q_actor = learner.q_select(state.learner, obs, actor_action)  # [E]
+            q_advisor = learner.q_select(state.learner, obs, adv_action)
             chosen, used_advisor = jax.vmap(select_action, in_axes=(0, 0, 0, 0, 0, None, None))(
                 jax.random.split(k_select, n_envs),
                 actor_action,
@@ -365,9 +365,9 @@ def make_train(
 
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
         """`chunk_steps` environment steps; `first_step` is the global index of the first.
-        The state it takes and returns holds no built targets (``LearnerState.target_nets``)."""
-        if hold_targets:
-            state = state.replace(learner=learner.hold_targets(state.learner))
+        The state it takes and returns holds nothing (``Learner.release``): flax trees."""
+        if hold:
+            state = state.replace(learner=learner.hold(state.learner))
         if not steady:
             state, metrics = general_chunk(state, hp, first_step)
         else:  # one conditional per chunk (its predicate is unbatched), none in the steady loop
@@ -377,7 +377,7 @@ def make_train(
                 lambda s: general_chunk(s, hp, first_step),
                 state,
             )
-        return state.replace(learner=learner.drop_targets(state.learner)), metrics
+        return state.replace(learner=learner.release(state.learner)), metrics
 
     return Trainer(
         init=core.init, chunk=chunk, max_steps=core.max_steps, steady=steady, advisor=core.advisor

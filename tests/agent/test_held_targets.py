@@ -1,4 +1,4 @@
-"""The learner's held target networks (``LearnerState.target_nets``, ``Learner.hold_targets``).
+"""The learner's held target networks (``LearnerState.target_nets``, ``Learner.hold``).
 
 With each hidden layer one GEMM (GPUs), a training chunk builds the target networks' matrices
 once per soft update instead of once per critic step. Held or not, the updates are the same
@@ -60,9 +60,9 @@ def test_held_targets_give_the_same_updates(learner_and_replay, program):
 
         body = update if program == "general" else block
         starts = jnp.arange(0, 3 * cfg.delay, 1 if program == "general" else cfg.delay)
-        state = learner.hold_targets(state) if hold else state
+        state = learner.hold(state) if hold else state
         state, metrics = jax.lax.scan(body, state, starts)  # three actor steps, critics between
-        return learner.drop_targets(state), metrics
+        return learner.release(state), metrics
 
     start = jax.jit(learner.init)(jax.random.key(0))
     (held, _), (built, _) = (jax.jit(lambda s, h=h: run(s, h))(start) for h in (True, False))
@@ -72,15 +72,15 @@ def test_held_targets_give_the_same_updates(learner_and_replay, program):
 
 def test_held_targets_are_the_targets_built_after_each_soft_update(learner_and_replay):
     cfg, learner, replay = learner_and_replay
-    state = learner.hold_targets(jax.jit(learner.init)(jax.random.key(0)))
+    state = learner.hold(jax.jit(learner.init)(jax.random.key(0)))
     k_sample, k_critic = jax.random.split(jax.random.key(5))
     state, _, _ = jax.jit(learner.update_with_actor)(
         state, replay, k_sample, k_critic, HParams(tau=0.5)
     )
-    rebuilt = learner.hold_targets(learner.drop_targets(state))
+    rebuilt = learner.hold(learner.release(state))
     _assert_equal(state.target_nets, rebuilt.target_nets)
     # and they are the new targets' matrices, not the initial ones
-    first = learner.hold_targets(jax.jit(learner.init)(jax.random.key(0)))
+    first = learner.hold(jax.jit(learner.init)(jax.random.key(0)))
     assert not np.array_equal(
         np.asarray(jax.tree.leaves(first.target_nets)[0]),
         np.asarray(jax.tree.leaves(state.target_nets)[0]),
@@ -91,20 +91,21 @@ def test_the_modules_hold_nothing(learner_and_replay):
     cfg = learner_and_replay[0]
     learner = make_learner(cfg, layout=networks.MODULES)
     state = learner.init(jax.random.key(0))
-    assert learner.hold_targets(state).target_nets is None
+    assert learner.hold(state).target_nets is None
 
 
-def test_a_chunk_takes_and_returns_the_state_without_held_targets():
+@pytest.mark.parametrize("held_critics", [False, True])
+def test_a_chunk_takes_and_returns_the_state_without_held_networks(held_critics):
     cfg, hp = preset("quick", "ATD3+AfDP", **SIZES)
-    trainer = make_train(cfg, layout=GEMM)
+    trainer = make_train(cfg, layout=GEMM._replace(held_critics=held_critics))
     state = jax.eval_shape(trainer.init, jax.random.key(0))
     out, _ = jax.eval_shape(trainer.chunk, state, hp, jnp.int32(0))
-    assert out.learner.target_nets is None
-    assert jax.tree.structure(out) == jax.tree.structure(state)
+    assert out.learner.target_nets is None and out.learner.held is None
+    assert jax.tree.structure(out) == jax.tree.structure(state)  # flax trees (agent/held_critics)
 
 
 def test_every_program_but_the_latency_bound_one_holds_its_targets(monkeypatch):
-    assert [program.holds_targets(p) for p in program.PROGRAMS] == [True, True, False]
+    assert [program.holds_networks(p) for p in program.PROGRAMS] == [True, True, False]
     built = {}
 
     def recording(cfg, steady, layout, hold_targets):
@@ -115,4 +116,4 @@ def test_every_program_but_the_latency_bound_one_holds_its_targets(monkeypatch):
     cfg = preset("quick", "ATD3+AfDP", **SIZES)[0]
     for name in program.PROGRAMS:
         program.population_functions(cfg, program=name)
-        assert built.pop(name != "general") == program.holds_targets(name)
+        assert built.pop(name != "general") == program.holds_networks(name)

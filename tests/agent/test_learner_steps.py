@@ -240,7 +240,7 @@ def test_q_select_is_min_over_critics(agents, random_batch, ref):
         agent = agents[name]
         state = agent.init(jax.random.key(9))
         q = ref.critics(state.critic, batch.obs, batch.action)
-        got = jax.jit(agent.learner.q_select)(state.critic, batch.obs, batch.action)
+        got = jax.jit(agent.learner.q_select)(state, batch.obs, batch.action)
         np.testing.assert_allclose(got, q.min(axis=0), rtol=1e-4, atol=1e-5)
     assert np.abs(q[0] - q[1]).min() > 1e-3  # the twin critics are distinct networks
 
@@ -314,8 +314,8 @@ def test_bf16_learner_computes_in_bf16_and_keeps_fp32_state(agents, random_batch
         d32, d16 = (b - a).ravel(), (c - a).ravel()
         assert d32 @ d16 > 0.9 * np.linalg.norm(d32) * np.linalg.norm(d16)
     # the selector acts with the fp32 critic whatever the learner's precision
-    q_fp32 = fp32.learner.q_select(state.critic, batch.obs, batch.action)
-    np.testing.assert_array_equal(learner.q_select(state.critic, batch.obs, batch.action), q_fp32)
+    q_fp32 = fp32.learner.q_select(state, batch.obs, batch.action)
+    np.testing.assert_array_equal(learner.q_select(state, batch.obs, batch.action), q_fp32)
 
 
 def test_unknown_precision_is_named():

@@ -1,0 +1,218 @@
+"""The twin critics held through a training chunk as the matrices their GEMM layers read.
+
+With each hidden layer one GEMM (``gemm_layers``) the critics multiply by augmented matrices
+built from the flax parameters: every critic step read the fp32 parameters and wrote the
+matrices again (the "matrix build", in bf16 with the cast; in fp32 a copy), and the
+gradient came back through the build's transpose. Held, the fp32 augmented matrices *are*
+the parameters θ and θ^T for the length of a chunk (``Learner.hold`` at its start,
+``release`` at its end, as the target networks are held): Adam and the soft update (Eqs. 5-7)
+work on them directly, and in bf16 Adam's pass also writes the bf16 copy that the next
+step's GEMMs read. No build remains in the loop.
+
+The same updates as the flax parameters get, entry by entry:
+
+* An entry that is structure, not a parameter (zero padding, the ones column that carries
+  the bias, the first layer's ±1 passing the action on), gets a zero gradient
+  (``gradient``: a mask of the rows and columns that hold parameters), so Adam's moments
+  stay 0 there and its update is 0: the entry never moves.
+* The join layer holds the action's kernel K_a twice, as ``+K_a`` against ``relu(a)`` and
+  ``-K_a`` against ``relu(-a)`` (``gemm_layers``). Its gradient is ``g₊ - g₋`` (the
+  build's transpose); held, the ``+`` row gets ``g₊ - g₋`` and the ``-`` row ``g₋ - g₊``,
+  exactly its negative. Adam and the soft update commute with negation in IEEE arithmetic,
+  so the ``-`` rows stay exactly the negated ``+`` rows.
+* Every other entry gets the gradient the flax leaf gets, in the same arithmetic.
+
+So held or not, the parameters and Adam's moments get the same update rule entry by entry,
+and the results agree to rounding, not bit for bit: given the flax tree, XLA computes some
+of its gradient's entries through the slices (the tied rows, the head's bias) with their own
+sums (``tests/agent/test_held_critics.py``). The stored state (a chunk's input and output, a
+checkpoint) is the flax tree either way. The acting critic of Eq. (1)'s selector reads the
+held fp32 matrices (``q_values``) instead of the flax modules: the same function, summed in
+another order (the bias inside the GEMM). ``training.program.holds_critics`` decides where
+a chunk holds them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from advisor_jax.agent import gemm_layers
+from advisor_jax.agent.networks import apply_critics
+
+
+class HeldCritics(NamedTuple):
+    """θ, θ^T and Adam's state of θ as fp32 augmented matrices (lists, one ``[n_critics, k,
+    n]`` array per layer), and the copies in the compute dtype that the GEMMs read (None in
+    fp32, where they read the parameters)."""
+
+    online: list[jax.Array]
+    target: list[jax.Array]
+    opt: Any
+    online_copy: list[jax.Array] | None
+    target_copy: list[jax.Array] | None
+
+    def online_nets(self) -> list[jax.Array]:
+        """What the online critics' GEMMs read."""
+        return _read(self.online, self.online_copy)
+
+    def target_nets(self) -> list[jax.Array]:
+        """What the target critics' GEMMs read."""
+        return _read(self.target, self.target_copy)
+
+
+def _read(matrices: list[jax.Array], hidden_copies: list[jax.Array] | None) -> list[jax.Array]:
+    """The hidden layers' copies and the fp32 head (``gemm_layers.critic_matrices``' dtypes)."""
+    return matrices if hidden_copies is None else [*hidden_copies, matrices[-1]]
+
+
+class Structure(NamedTuple):
+    """Which entries of each augmented matrix are parameters: those in a row of ``rows`` and a
+    column of ``cols`` (static bool vectors per layer); ``tied``: (layer, first row, pairs)
+    of the join layer's interleaved ``(+K_a, -K_a)`` rows."""
+
+    rows: tuple[np.ndarray, ...]
+    cols: tuple[np.ndarray, ...]
+    tied: tuple[int, int, int]
+
+    def mask(self, layer: int) -> np.ndarray:
+        return self.rows[layer][:, None] & self.cols[layer][None, :]
+
+    def minus_rows(self, layer: int) -> np.ndarray:
+        """Bool per row: the ``-K_a`` rows (the tied copies)."""
+        out = np.zeros(self.rows[layer].shape, bool)
+        tied_layer, first, pairs = self.tied
+        if layer == tied_layer:
+            out[first + 1 : first + 2 * pairs : 2] = True
+        return out
+
+
+def structure(critic_params: Any) -> Structure:
+    """The ``Structure`` of one critic's matrices (``gemm_layers.critic_matrices``) for a
+    params tree of its shapes (no critic axis; arrays or ``jax.ShapeDtypeStruct``): an entry
+    is a parameter where the matrices built from all-ones and all-zeros parameters differ."""
+    with jax.ensure_compile_time_eval():
+        ones, zeros = (
+            jax.tree.map(lambda s, v=v: jnp.full(s.shape, v, jnp.float32), critic_params)
+            for v in (1.0, 0.0)
+        )
+        built = [gemm_layers.critic_matrices(p, jnp.float32) for p in (ones, zeros)]
+        differs = [np.asarray(a) != np.asarray(b) for a, b in zip(*built, strict=True)]
+    rows = tuple(d.any(axis=1) for d in differs)
+    cols = tuple(d.any(axis=0) for d in differs)
+    for d, r, c in zip(differs, rows, cols, strict=True):
+        if not np.array_equal(d, r[:, None] & c[None, :]):
+            raise ValueError("a critic matrix's parameters are not a block of rows × columns")
+    tied = gemm_layers.critic_tied_rows(critic_params)
+    layer, first, pairs = tied
+    signs = np.asarray(built[0][layer] - built[1][layer])[first : first + 2 * pairs]
+    if not (np.all(signs[0::2][:, cols[layer]] == 1) and np.all(signs[1::2][:, cols[layer]] == -1)):
+        raise ValueError(f"rows {first}.. of critic layer {layer} are not (+K_a, -K_a) pairs")
+    return Structure(rows, cols, tied)
+
+
+def _masked(matrices: list[jax.Array], s: Structure) -> list[jax.Array]:
+    return [jnp.where(s.mask(i), m, jnp.zeros((), m.dtype)) for i, m in enumerate(matrices)]
+
+
+def _build(critics: Any) -> list[jax.Array]:
+    """fp32 augmented matrices of critics stacked on a leading axis (values placed exactly)."""
+    return jax.vmap(gemm_layers.critic_matrices, in_axes=(0, None))(critics, jnp.float32)
+
+
+def _adam_states(opt_state: Any, convert: Callable[[Any, str], Any]) -> Any:
+    """``opt_state`` with the moments of every ``optax.ScaleByAdamState`` converted
+    (``convert(tree, "mu" | "nu")``); the count and the rest unchanged."""
+
+    def one(s):
+        if isinstance(s, optax.ScaleByAdamState):
+            return s._replace(mu=convert(s.mu, "mu"), nu=convert(s.nu, "nu"))
+        return s
+
+    is_adam = lambda s: isinstance(s, optax.ScaleByAdamState)  # noqa: E731
+    return jax.tree.map(one, opt_state, is_leaf=is_adam)
+
+
+def copies(matrices: list[jax.Array], dtype: Any) -> list[jax.Array] | None:
+    """The hidden layers' matrices in the compute ``dtype``, as ``gemm_layers.critic_matrices``
+    builds them (the head stays fp32); None for fp32, where the GEMMs read the matrices."""
+    if jnp.dtype(dtype) == jnp.float32:
+        return None
+    return [m.astype(dtype) for m in matrices[:-1]]
+
+
+def hold(critic: Any, target_critic: Any, critic_opt: Any, s: Structure, dtype: Any) -> HeldCritics:
+    """The flax parameters θ, θ^T (leading critic axis) and their Adam state, held as
+    matrices. Adam's moments are 0 on structure; ν, like a square, is positive on the
+    ``-K_a`` rows (μ, like the gradient, negative)."""
+
+    def moments(tree, name):
+        dtype_of = jax.tree.leaves(tree)[0].dtype
+        built = _masked(_build(tree), s)
+        built = [jnp.abs(m) for m in built] if name == "nu" else built
+        return [m.astype(dtype_of) for m in built]
+
+    online, target = _build(critic), _build(target_critic)
+    opt = _adam_states(critic_opt, moments)
+    return HeldCritics(online, target, opt, copies(online, dtype), copies(target, dtype))
+
+
+def _unbuild(matrices: list[jax.Array], template: Any, s: Structure) -> Any:
+    """The fp32 flax tree the matrices were built from: the build's transpose (slices,
+    exact) of the matrices without their ``-K_a`` rows."""
+    kept = [
+        jnp.where(s.minus_rows(i)[:, None], 0.0, m.astype(jnp.float32))
+        for i, m in enumerate(matrices)
+    ]
+    zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, jnp.float32), template)
+    _, pullback = jax.vjp(_build, zeros)
+    return pullback(kept)[0]
+
+
+def release(held: HeldCritics, template: Any, s: Structure) -> tuple[Any, Any, Any]:
+    """(θ, θ^T, Adam's state) as the flax trees ``hold`` took; ``template``: θ's tree or its
+    shapes (``jax.ShapeDtypeStruct``s)."""
+
+    def moments(matrices, name):
+        dtype_of = matrices[0].dtype
+        return jax.tree.map(lambda x: x.astype(dtype_of), _unbuild(matrices, template, s))
+
+    critic = _unbuild(held.online, template, s)
+    target = _unbuild(held.target, template, s)
+    return critic, target, _adam_states(held.opt, moments)
+
+
+def gradient(d_nets: list[jax.Array], s: Structure) -> list[jax.Array]:
+    """The held parameters' fp32 gradient from the loss's gradient with respect to what the
+    GEMMs read: 0 on structure, ``±(g₊ - g₋)`` on the tied rows (module docstring). One
+    elementwise expression per layer, which XLA fuses into Adam's pass."""
+    layer, first, pairs = s.tied
+    out = []
+    for i, d in enumerate(d_nets):
+        g = d.astype(jnp.float32)
+        if i == layer:
+            block = g[..., first : first + 2 * pairs, :]
+            swapped = jnp.flip(block.reshape(*block.shape[:-2], pairs, 2, -1), -2)
+            widths = [(0, 0)] * (g.ndim - 2) + [(first, g.shape[-2] - first - 2 * pairs), (0, 0)]
+            g = g - jnp.pad(swapped.reshape(block.shape), widths)
+        out.append(g)
+    return _masked(out, s)
+
+
+def global_norm(grads: list[jax.Array], s: Structure) -> jax.Array:
+    """``optax.global_norm`` of the flax tree's gradient, from ``gradient``'s: K_a counted once.
+    The sum of squares reads what Adam reads (so XLA sums it in Adam's pass); the ``-K_a``
+    rows' share, a few rows, comes off after."""
+    layer, first, pairs = s.tied
+    copies = grads[layer][..., first + 1 : first + 2 * pairs : 2, :]
+    return jnp.sqrt(sum(jnp.sum(g**2) for g in grads) - jnp.sum(copies**2))
+
+
+def q_values(held: HeldCritics, obs: jax.Array, action: jax.Array, per_critic: bool) -> jax.Array:
+    """Q of every critic, ``[n_critics, ...]``, at fp32 from the held parameters (acting)."""
+    return apply_critics(gemm_layers.critic_forward, held.online, obs, action, per_critic)
