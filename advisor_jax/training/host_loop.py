@@ -82,7 +82,7 @@ from advisor_jax.training.population import (
     check_seed,
     eval_key,
 )
-from advisor_jax.training.program import population_functions
+from advisor_jax.training.program import choose_program, population_functions
 
 
 def run_training(
@@ -109,8 +109,10 @@ def run_training(
 ) -> dict:
     """Trains, evaluates and saves a population; returns the summary written to run.json.
 
-    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is. ``devices``: how
-    many of ``jax.devices()`` share the agents (None: all; ``devices.place``). ``program``
+    ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is, with the chunk's
+    program where this call builds it (``"program"``, what ``--program`` reproduces).
+    ``devices``: how many of ``jax.devices()`` share the agents (None: all;
+    ``devices.place``). ``program``
     is ``population_functions(cfg, placement)`` for that placement when the caller already
     compiled it (tests, several runs of one config); None builds it here, with
     ``chunk_program`` (``program.PROGRAMS``; None: ``program.choose_program``). Raises
@@ -153,7 +155,11 @@ def run_training(
     baseline = cfg.agent.baseline
     check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
-    program = program or population_functions(cfg, placement, chunk_program)  # not compiled
+    if program is None:  # not compiled yet
+        if chunk_program in (None, "auto"):
+            chunk_program = choose_program(placement, precision=cfg.agent.precision)
+        program = population_functions(cfg, placement, chunk_program)
+        meta = {**(meta or {}), "program": chunk_program}
     limits.check_steps(program[0].max_steps, cfg.chunk_steps)
     keys = agent_keys([a["seed"] for a in agents])
     abstract = jax.eval_shape(jax.vmap(program[0].init), keys)

@@ -76,6 +76,7 @@ def test_run_writes_every_output(finished_run):
     saved = json.loads((out / "run.json").read_text())
     assert saved["status"] == "finished" and saved["agent"] == "ATD3+AfDP"
     assert [a["seed"] for a in saved["agents"]] == [0, 1]
+    assert saved["program"] == "general"  # picked here (a CPU's program), recorded
     metrics = np.load(out / "metrics.npz")
     assert metrics["outcome"].shape == (2, QUICK.episodes)
     assert np.all(metrics["outcome"] > 0)
