@@ -139,7 +139,8 @@ def make_learner(
         return optax.adam(learning_rate, mu_dtype=mu_dtype)  # lr: a traced hyperparameter
 
     def build_targets(state: LearnerState) -> tuple[Any, Any]:
-        critics = None if state.held else jax.vmap(critic_net.build)(state.target_critic)
+        held = state.held is not None
+        critics = None if held else jax.vmap(critic_net.build)(state.target_critic)
         return actor_net.build(state.target_actor), critics
 
     def hold(state: LearnerState) -> LearnerState:
