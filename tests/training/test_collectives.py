@@ -10,8 +10,9 @@ CPU test can see (results/multigpu_hlo.md, "On GPUs").
 
 Two workers run at once (XLA's compiles are mostly single-threaded): the TINY population
 and the same with a cross-agent reduction injected into its step (the check must catch
-it), and LfD, a gated baseline whose chunk gate (a min over every agent) is the one
-collective the program may hold, once per chunk, outside the loop.
+it); LfD, a gated baseline whose chunk gate (a min over every agent) is the one
+collective the program may hold, once per chunk, outside the loop, and TINY with the critics
+held as a GPU's fp32 general program holds them (``agent/held_critics.py``).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ def compiled(tmp_path_factory):
     root = tmp_path_factory.mktemp("collectives")
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     procs = []
-    for cases in (["tiny", "injected"], ["lfd"]):
+    for cases in (["tiny", "injected"], ["lfd", "held"]):
         out = root / f"{cases[0]}.json"
         with out.open("w") as sink:  # a file, not a pipe: a full pipe would block
             procs.append((subprocess.Popen([sys.executable, str(WORKER), "2", *cases],
@@ -68,6 +69,12 @@ def test_sharded_chunk_has_no_collective(compiled):
     inside = _in_loop(compiled["tiny"])
     assert not inside, "collectives paid at every step:\n" + _listed(inside)
     assert not compiled["tiny"], "collectives once per chunk:\n" + _listed(compiled["tiny"])
+
+
+def test_held_critics_exchange_nothing(compiled):
+    """Holding and releasing the critics at the chunk's ends, and Adam on the held matrices
+    inside it, are each agent's own: no collective anywhere."""
+    assert not compiled["held"], _listed(compiled["held"])
 
 
 def test_gated_baseline_reduces_once_per_chunk(compiled):
