@@ -190,7 +190,7 @@ def release(held: HeldCritics, template: Any, s: Structure) -> tuple[Any, Any, A
 def gradient(d_nets: list[jax.Array], s: Structure) -> list[jax.Array]:
     """The held parameters' fp32 gradient from the loss's gradient with respect to what the
     GEMMs read: 0 on structure, ``±(g₊ - g₋)`` on the tied rows (module docstring). One
-    elementwise expression per layer, which XLA fuses into Adam's pass."""
+    elementwise expression per layer, for XLA to fuse into Adam's pass."""
     layer, first, pairs = s.tied
     out = []
     for i, d in enumerate(d_nets):
@@ -206,11 +206,13 @@ def gradient(d_nets: list[jax.Array], s: Structure) -> list[jax.Array]:
 
 def global_norm(grads: list[jax.Array], s: Structure) -> jax.Array:
     """``optax.global_norm`` of the flax tree's gradient, from ``gradient``'s: K_a counted once.
-    The sum of squares reads what Adam reads (so XLA sums it in Adam's pass); the ``-K_a``
-    rows' share, a few rows, comes off after."""
+    The sum of squares reads what Adam reads (so that XLA can sum it in Adam's pass); the
+    ``-K_a`` rows' share, a few rows, comes off after (at most half the total; clamped at 0
+    all the same, since a NaN norm would mark the agent diverged)."""
     layer, first, pairs = s.tied
-    copies = grads[layer][..., first + 1 : first + 2 * pairs : 2, :]
-    return jnp.sqrt(sum(jnp.sum(g**2) for g in grads) - jnp.sum(copies**2))
+    minus = grads[layer][..., first + 1 : first + 2 * pairs : 2, :]
+    total = sum(jnp.sum(g**2) for g in grads) - jnp.sum(minus**2)
+    return jnp.sqrt(jnp.maximum(total, 0.0))
 
 
 def q_values(held: HeldCritics, obs: jax.Array, action: jax.Array, per_critic: bool) -> jax.Array:
