@@ -131,9 +131,12 @@ def make_learner(
     actor_net, critic_net = learner_functions(actor, critic, layout)
     mu_dtype = jnp.bfloat16 if layout.bf16_first_moment and cfg.precision == "bf16" else None
     holds_critics = layout.held_critics and layout.layers_in_gemm
-    critics_shape = jax.eval_shape(lambda: init_critics(critic, jax.random.key(0), cfg.n_critics))
-    one_critic = jax.eval_shape(lambda: _first_critic(init_critics(critic, jax.random.key(0), 1)))
-    structure = held_critics.structure(one_critic) if holds_critics else None
+    critics_shape = structure = None
+    if holds_critics:  # the held matrices' layout, read from the critics' shapes
+        critics_shape = jax.eval_shape(lambda k: init_critics(critic, k, cfg.n_critics),
+                                       jax.random.key(0))  # fmt: skip
+        one = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), critics_shape)
+        structure = held_critics.structure(one)
 
     def adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
         return optax.adam(learning_rate, mu_dtype=mu_dtype)  # lr: a traced hyperparameter

@@ -130,7 +130,7 @@ class TrainArgs:
     its devices, their memory and the precision; general (a conditional per step for warm-up
     and the TD3 delay), steady (no conditional in the loop past warm-up) or latency-bound
     (the steady program with overlapping kernels: more memory). They compute the same steps
-    up to float rounding; recorded in run.json when not auto."""
+    up to float rounding; recorded in run.json (auto: the program it picked)."""
     out: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
     """Run directory (default: runs/<agent>-<preset>-<UTC time>). Held exclusively while
     the run trains: a second run or --resume into it is refused."""
