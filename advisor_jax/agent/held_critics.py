@@ -204,14 +204,27 @@ def gradient(d_nets: list[jax.Array], s: Structure) -> list[jax.Array]:
     return _masked(out, s)
 
 
+def _sum_of_squares(g: jax.Array) -> jax.Array:
+    """Σ g², summed along its rows first: a reduction over the last axis (rows of a matrix's
+    width), the one XLA emits in Adam's pass over the matrix. Summed whole, XLA splits the
+    sum over a layer's entries into factors of their count, and at the paper's [504, 608]
+    an odd factor (2 · 504 · 608 = 512 · 1197 for the twin critics): that pass, Adam's and
+    the sum's, then read memory at about 0.6 of the bandwidth of its neighbours
+    (``results/bench_held_critics/``). The barrier keeps XLA from merging the two sums
+    back into one."""
+    rows = jnp.sum(jnp.square(g), axis=-1)
+    return jnp.sum(jax.lax.optimization_barrier(rows))
+
+
 def global_norm(grads: list[jax.Array], s: Structure) -> jax.Array:
     """``optax.global_norm`` of the flax tree's gradient, from ``gradient``'s: K_a counted once.
-    The sum of squares reads what Adam reads (so that XLA can sum it in Adam's pass); the
-    ``-K_a`` rows' share, a few rows, comes off after (at most half the total; clamped at 0
-    all the same, since a NaN norm would mark the agent diverged)."""
+    The sum of squares reads what Adam reads (so that XLA can sum it in Adam's pass, row by
+    row: ``_sum_of_squares``); the ``-K_a`` rows' share, a few rows, comes off after (at most
+    half the total; clamped at 0 all the same, since a NaN norm would mark the agent
+    diverged)."""
     layer, first, pairs = s.tied
     minus = grads[layer][..., first + 1 : first + 2 * pairs : 2, :]
-    total = sum(jnp.sum(g**2) for g in grads) - jnp.sum(minus**2)
+    total = sum(_sum_of_squares(g) for g in grads) - jnp.sum(jnp.square(minus))
     return jnp.sqrt(jnp.maximum(total, 0.0))
 
 

@@ -10,6 +10,8 @@ hold them. (A chunk returns the flax trees: ``test_held_targets.py``.)
 
 from __future__ import annotations
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -161,3 +163,13 @@ def test_fp32_learners_hold_their_critics_in_the_general_program_on_gpus():
     for name, precision in [*others, ("steady", "bf16")]:
         assert not program.program_layout(name, precision, "gpu").held_critics, (name, precision)
     assert program.program_layout("general", "fp32", "cpu") == networks.MODULES
+
+
+def test_the_norms_sum_of_squares_runs_along_the_rows_first():
+    """``_sum_of_squares`` is Σ g², and the compiled program keeps its row sums (a reduction
+    over the last axis only, the one XLA emits in Adam's pass) instead of one merged sum."""
+    g = jax.random.normal(jax.random.key(3), (3, 2, 40, 24))
+    got = jax.jit(jax.vmap(held_critics._sum_of_squares))(g)
+    np.testing.assert_allclose(got, jnp.sum(g**2, axis=(1, 2, 3)), rtol=1e-5)
+    hlo = jax.jit(jax.vmap(held_critics._sum_of_squares)).lower(g).compile().as_text()
+    assert re.search(r"f32\[3,2,40\]\{[0-9,]*\} reduce\(", hlo), "the row sums were merged away"
