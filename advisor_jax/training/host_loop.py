@@ -112,13 +112,13 @@ def run_training(
     ``meta`` (e.g. ``{"preset": "paper"}``) is recorded in run.json as is, with the chunk's
     program where this call builds it (``"program"``, what ``--program`` reproduces).
     ``devices``: how many of ``jax.devices()`` share the agents (None: all;
-    ``devices.place``). ``program``
-    is ``population_functions(cfg, placement)`` for that placement when the caller already
-    compiled it (tests, several runs of one config); None builds it here, with
-    ``chunk_program`` (``program.PROGRAMS``; None: ``program.choose_program``). Raises
-    ValueError for a bad option before anything is written, and ``runlock.RunDirectoryBusy``
-    if another process is training into ``out_dir``. An interrupt (Ctrl-C, SIGTERM, SIGHUP)
-    saves a checkpoint at the end of the current chunk and raises
+    ``devices.place``). ``program`` is ``population_functions(cfg, placement)`` for that
+    placement when the caller already compiled it (tests, several runs of one config); None
+    builds it here, with ``chunk_program`` (``program.PROGRAMS``; None:
+    ``program.choose_program``). Raises ValueError for a bad option before anything is
+    written, and ``runlock.RunDirectoryBusy`` if another process is training into
+    ``out_dir``. An interrupt (Ctrl-C, SIGTERM, SIGHUP) saves a checkpoint at the end of the
+    current chunk and raises
     ``interrupts.Interrupted`` (a KeyboardInterrupt) whose ``detail`` says how to continue.
     ``eval_seed`` keys the evaluation episodes (None: the first seed); runs given the same
     one are evaluated on the same episodes, so their agents can be pooled and paired.
