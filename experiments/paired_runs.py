@@ -12,14 +12,20 @@ arena, with the 95 % t interval of the mean difference (``stats.paired_differenc
         --out results/precision_study/held_critics_fp32
 
 Writes ``paired.md`` and ``paired.json`` into ``--out``; refuses runs whose settings,
-seeds or evaluation episodes differ.
+seeds or evaluation episodes differ. Where both are single run directories, it also counts the
+seeds whose training episodes were the same, episode for episode (``same_episodes``): a change
+that computes exactly what it replaced shows there, where the interval can only say "not
+resolved".
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from advisor_jax.analysis.items.base import ARENAS
 from advisor_jax.analysis.runs import Point, load_runs, pool
@@ -60,6 +66,38 @@ def compare(control: Point, treatment: Point) -> dict:
     return rows
 
 
+EPISODE_ARRAYS = ("outcome", "length", "reward_per_step", "collision_speed")
+"""Per-episode arrays of ``metrics.npz`` (seeds × episodes) that ``same_episodes`` compares."""
+
+
+def _episodes_by_seed(run_dir: Path) -> dict[int, tuple] | None:
+    """Seed → its rows of ``EPISODE_ARRAYS``, for one run directory (None: not one)."""
+    if not (run_dir / "metrics.npz").is_file() or not (run_dir / "run.json").is_file():
+        return None
+    seeds = [row["seed"] for row in json.loads((run_dir / "run.json").read_text())["agents"]]
+    with np.load(run_dir / "metrics.npz") as metrics:
+        arrays = [metrics[name] for name in EPISODE_ARRAYS]
+    return {seed: tuple(a[i] for a in arrays) for i, seed in enumerate(seeds)}
+
+
+def same_episodes(control: Path, treatment: Path) -> dict | None:
+    """How many seeds trained the same episodes in both run directories: every entry of
+    ``EPISODE_ARRAYS`` equal (NaN equal to NaN). None unless both are single runs."""
+    c, t = _episodes_by_seed(control), _episodes_by_seed(treatment)
+    if c is None or t is None:
+        return None
+    seeds = sorted(set(c) & set(t))
+    same = [
+        s
+        for s in seeds
+        if all(
+            x.shape == y.shape and np.array_equal(x, y, equal_nan=x.dtype.kind == "f")
+            for x, y in zip(c[s], t[s], strict=True)
+        )
+    ]
+    return dict(arrays=list(EPISODE_ARRAYS), seeds=len(seeds), identical_seeds=same)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("control", type=Path)
@@ -70,8 +108,11 @@ def main(argv=None) -> int:
     control = the_point(args.control, args.eval_seed)
     treatment = the_point(args.treatment, args.eval_seed)
     rows = compare(control, treatment)
+    episodes = same_episodes(args.control, args.treatment)
     args.out.mkdir(parents=True, exist_ok=True)
     record = dict(control=str(args.control), treatment=str(args.treatment), arenas=rows)
+    if episodes is not None:
+        record["same_episodes"] = episodes
     atomic_write_json(args.out / "paired.json", dict(agent=control.agent, **record))
     table = "\n".join(writing.markdown_table(
         ("arena", "control success (%)", "treatment success (%)", "treatment − control", "verdict"),
@@ -84,11 +125,19 @@ def main(argv=None) -> int:
         f"# {control.agent}: {args.treatment} against {args.control}\n\n"
         f"Same agent, settings, {len(control.seeds)} seeds and evaluation episodes; success, "
         "mean ± 95 % interval; the difference paired by seed.\n\n"
-        f"{table}\n\nCommand: `{command}`\n"
+        f"{table}\n\n{_episodes_line(episodes)}Command: `{command}`\n"
     )
     (args.out / "paired.md").write_text(text)
     print(text)
     return 0
+
+
+def _episodes_line(episodes: dict | None) -> str:
+    if episodes is None:
+        return ""
+    n_same, n = len(episodes["identical_seeds"]), episodes["seeds"]
+    names = ", ".join(name.replace("_", " ") for name in episodes["arrays"])
+    return f"Training episodes ({names}), every one equal: {n_same} of {n} seeds.\n\n"
 
 
 if __name__ == "__main__":

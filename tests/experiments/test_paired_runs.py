@@ -47,3 +47,27 @@ def test_the_difference_is_treatment_minus_control_seed_by_seed(tmp_path):
 def test_runs_of_different_agents_are_refused(tmp_path):
     with pytest.raises(ValueError, match="agent or settings"):
         paired_runs.main([str(CONTROL), str(OTHER_AGENT), "--out", str(tmp_path)])
+
+
+def test_seeds_whose_training_episodes_all_match_are_counted(tmp_path):
+    # A copy of the control trained the same episodes; then one episode of one seed changes.
+    treatment = tmp_path / "treatment"
+    shutil.copytree(CONTROL, treatment)
+    seeds = sorted(_success(CONTROL, "training"))
+    assert paired_runs.same_episodes(CONTROL, treatment)["identical_seeds"] == seeds
+
+    with np.load(treatment / "metrics.npz") as kept:
+        metrics = dict(kept)
+    metrics["length"] = metrics["length"].copy()
+    metrics["length"][1, 7] += 1  # the second seed of run.json, episode 7
+    np.savez_compressed(treatment / "metrics.npz", **metrics)
+    second = json.loads((treatment / "run.json").read_text())["agents"][1]["seed"]
+
+    out = tmp_path / "out"
+    assert paired_runs.main([str(CONTROL), str(treatment), "--out", str(out)]) == 0
+    episodes = json.loads((out / "paired.json").read_text())["same_episodes"]
+    assert episodes["identical_seeds"] == [s for s in seeds if s != second]
+    assert (
+        f"every one equal: {len(seeds) - 1} of {len(seeds)} seeds"
+        in (out / "paired.md").read_text()
+    )
