@@ -14,9 +14,10 @@ leave open:
 * how the learner's networks are computed (``network_layout``): the twin critics' input
   layout (``twin_inputs_per_critic``), each hidden layer as one GEMM
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
-  (``holds_networks``) and whose critics, for fp32 learners in the general program, it holds
-  as the matrices the GEMMs read (``holds_critics``, ``program_layout``), and the critic's
-  first-layer kernel (``agent/masked_wgrad.py``);
+  (``holds_networks``) and whose critics, for fp32 learners in the general program and small
+  bf16 populations in the steady one, it holds as the matrices the GEMMs read
+  (``holds_critics``, ``program_layout``), and the critic's first-layer kernel
+  (``agent/masked_wgrad.py``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
 
@@ -140,21 +141,44 @@ def network_layout(backend: str | None = None) -> Layout:
                   bf16_first_moment=gemm)  # fmt: skip
 
 
-def holds_critics(program: str, precision: str) -> bool:
+HELD_STEADY_BF16_AGENTS = 256
+"""The most agents per device whose bf16 critics the steady program holds (``holds_critics``).
+One H100, jax 0.11.2, against the tree before in one command: 1.02× at 64 agents (twice) and
+1.01× at 256, peak 6.18 / 25.21 GiB against 5.69 / 22.61; at 512 agents 0.93× (the compiler
+wanted 82.5 GiB and rematerialized), peak 48.88 GiB against 45.84
+(``results/bench_held_critics/``)."""
+
+
+def holds_critics(program: str, precision: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` holds its ``precision`` learners' critics as their GEMM
     layers' matrices (``Layout.held_critics``, ``agent/held_critics.py``): no matrix build in
-    the loop, Adam and the soft update on the matrices. fp32 learners in the general program:
-    one H100, jax 0.11.2, against the tree before in one command, twice, the 128-agent fp32
-    learner 1.04-1.05× and the 64-agent fp32 step 1.01×; bf16's learner gained 1.02× but its
-    64-agent step, the steady program, ran 0.99× (``results/bench_held_critics/``)."""
-    return program == "general" and precision == "fp32"
+    the loop, Adam and the soft update on the matrices. The updates are those of the built
+    matrices: a 16-seed bf16 population trained the same, episode for episode. Where it pays,
+    each measured on one H100 (jax 0.11.2) against the tree before in one command
+    (``results/bench_held_critics/``):
+
+    * fp32 learners in the general program: the 128-agent learner 1.04-1.05× and the 64-agent
+      step 1.01× (1.047× more after the gradient norm's row sums);
+    * bf16 learners in the steady program with at most ``HELD_STEADY_BF16_AGENTS`` agents
+      per device (``agents_per_device``; None: unknown, not held).
+
+    Not measured to pay, so not held: the latency-bound program, fp32's steady program (slower
+    and more memory than its general one), bf16's general program (which one GPU gives only
+    to populations too large for the steady one)."""
+    if (program, precision) == ("general", "fp32"):
+        return True
+    small = agents_per_device is not None and agents_per_device <= HELD_STEADY_BF16_AGENTS
+    return (program, precision) == ("steady", "bf16") and small
 
 
-def program_layout(program: str, precision: str, backend: str | None = None) -> Layout:
+def program_layout(
+    program: str, precision: str, backend: str | None = None, agents_per_device: int | None = None
+) -> Layout:
     """``network_layout`` for the chunk's ``program`` and the learners' ``precision``: with the
-    critics held where ``holds_critics`` says (only with ``layers_in_gemm``)."""
+    critics held where ``holds_critics`` says for ``agents_per_device`` (only with
+    ``layers_in_gemm``)."""
     layout = network_layout(backend)
-    held = layout.layers_in_gemm and holds_critics(program, precision)
+    held = layout.layers_in_gemm and holds_critics(program, precision, agents_per_device)
     return layout._replace(held_critics=held)
 
 
@@ -220,7 +244,7 @@ def choose_program(
       program's loop, all in the conditional of TD3's delayed actor step; the steady loop
       has no conditional and none of them. 256 bf16 agents on two / four H200s then run
       1.95× / 3.70× one GPU instead of 1.26× / 1.70× (``results/multigpu_hlo.md``,
-      ``results/bench_multigpu.md``). It costs memory: 46 GiB for 512 agents on one GPU
+      ``results/bench_multigpu/``). It costs memory: 46 GiB for 512 agents on one GPU
       against the general program's 34;
     * steady for a larger bf16 population on one GPU whose memory holds it (``steady_fits``,
       ``memory_bytes`` as there): on one H100 (jax 0.11.2, two commands each, alternating)
@@ -261,7 +285,8 @@ def population_functions(
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
     overlap = program == "latency-bound"
-    layout = program_layout(program, cfg.agent.precision)
+    per_device = None if placement is None else placement.n_padded // placement.n_devices
+    layout = program_layout(program, cfg.agent.precision, agents_per_device=per_device)
     # The agent axis carries the mesh axis's name: a collective over it inside the step
     # (``lax.pmin(x, AXIS)``) would be an all-reduce between devices at every step. None is
     # written; tests/training/test_collectives.py injects one to show that its check of the

@@ -157,12 +157,23 @@ def test_the_selector_reads_the_held_critics():
     )
 
 
-def test_fp32_learners_hold_their_critics_in_the_general_program_on_gpus():
+def test_fp32_general_and_small_bf16_steady_learners_hold_their_critics_on_gpus():
+    most = program.HELD_STEADY_BF16_AGENTS
     assert program.program_layout("general", "fp32", "gpu").held_critics
-    others = [("steady", "fp32"), ("latency-bound", "fp32"), ("general", "bf16")]
-    for name, precision in [*others, ("steady", "bf16")]:
-        assert not program.program_layout(name, precision, "gpu").held_critics, (name, precision)
+    assert program.program_layout("steady", "bf16", "gpu", agents_per_device=most).held_critics
+    not_held = [
+        ("steady", "bf16", most + 1),
+        ("steady", "bf16", None),
+        ("steady", "fp32", 64),
+        ("latency-bound", "fp32", 8),
+        ("latency-bound", "bf16", 8),
+        ("general", "bf16", 64),
+    ]
+    for name, precision, agents in not_held:
+        layout = program.program_layout(name, precision, "gpu", agents_per_device=agents)
+        assert not layout.held_critics, (name, precision, agents)
     assert program.program_layout("general", "fp32", "cpu") == networks.MODULES
+    assert program.program_layout("steady", "bf16", "cpu", agents_per_device=8) == networks.MODULES
 
 
 def test_the_norms_sum_of_squares_runs_along_the_rows_first():

@@ -237,3 +237,18 @@ def test_train_program_reaches_the_built_program_and_run_json(
         cli_main(["train", "--out", str(tmp_path / "run"), "--no-progress", *option])
     meta = {"preset": "quick"} | ({} if expected is None else {"program": expected})
     assert asked == [meta, expected or program.choose_program(None)]
+
+
+def test_the_population_functions_pass_the_agents_per_device_to_the_layout(monkeypatch):
+    """``population_functions`` asks ``program_layout`` with its placement's agents per device."""
+    asked = []
+    real = program.program_layout
+
+    def spy(name, precision, backend=None, agents_per_device=None):
+        asked.append(agents_per_device)
+        return real(name, precision, backend, agents_per_device)
+
+    monkeypatch.setattr(program, "program_layout", spy)
+    program.population_functions(TINY, place(3, 1), "steady")
+    program.population_functions(TINY, None, "steady")
+    assert asked == [3, None]
