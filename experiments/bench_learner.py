@@ -38,10 +38,11 @@ from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
 from advisor_jax.agent.replay_buffer import replay_sample
 from advisor_jax.bench import measure, writing
-from advisor_jax.bench.learner_loop import SMALL, fill_replay, make_update_loop
+from advisor_jax.bench.learner_loop import SMALL, fill_replay, loop_program, make_update_loop
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training.program import network_layout
+from advisor_jax.training.devices import place
+from advisor_jax.training.program import PROGRAMS, choose_program, network_layout
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
@@ -177,10 +178,15 @@ def main() -> None:
                         help="learner precisions to time (AgentConfig.precision)")  # fmt: skip
     parser.add_argument("--reference", type=Path, metavar="TREE",
                         help="also run this checkout's benchmark and compare")  # fmt: skip
-    parser.add_argument("--latency-bound", action="store_true",
-                        help="time the update loop as the latency-bound training program "
-                             "compiles it (make_update_loop's steady); not passed to "
+    parser.add_argument("--program", default="general", choices=("auto", *PROGRAMS),
+                        help="the training program whose update loop to time "
+                             "(learner_loop.make_update_loop): general (default), steady, "
+                             "latency-bound, or auto: what training picks for each population "
+                             "on one device (program.choose_program); not passed to "
                              "--reference")  # fmt: skip
+    parser.add_argument("--latency-bound", dest="program", action="store_const",
+                        const="latency-bound",
+                        help="the same as --program latency-bound")  # fmt: skip
     args = parser.parse_args()
     reference = None
     if args.reference:
@@ -206,7 +212,11 @@ def main() -> None:
     rows = []
     for precision, n_agents in itertools.product(args.precision, args.agents):
         cfg = dataclasses.replace(cfg, precision=precision)
-        learner, loop = make_update_loop(cfg, args.updates, args.latency_bound)
+        program = args.program
+        if program == "auto":
+            program = choose_program(place(n_agents, 1), precision=precision)
+        program = loop_program(cfg, args.updates, program)
+        learner, loop = make_update_loop(cfg, args.updates, program, agents_per_device=n_agents)
         keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
         states = jax.jit(jax.vmap(learner.init))(keys)
         replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
@@ -222,10 +232,11 @@ def main() -> None:
                    tflops=tflops, pct_ceiling=100 * tflops / ceilings[precision],
                    flops_per_update_analytic=analytic, flops_per_update_xla=xla_flops,
                    seconds_per_call=best, first_call_s=first,
-                   precision=PRECISION_LABELS[precision])  # fmt: skip
+                   precision=PRECISION_LABELS[precision], program=program)  # fmt: skip
         rows.append(row)
         print(
-            f"{precision} agents {n_agents:4d}: {ups:10.0f} agent-updates/s  {tflops:7.2f} TFLOP/s "
+            f"{precision} agents {n_agents:4d} ({program}): {ups:10.0f} agent-updates/s  "
+            f"{tflops:7.2f} TFLOP/s "
             f"({row['pct_ceiling']:.1f} % of matmul)  GFLOP/update analytic {analytic / 1e9:.2f} "
             f"xla {xla_flops / 1e9:.2f}"
         )
@@ -235,18 +246,19 @@ def main() -> None:
         **where, breakdown_agents=args.breakdown, breakdown_us={k: 1e6 * v for k, v in pieces},
         agent=cfg.name, config=dataclasses.asdict(cfg), updates_per_call=args.updates,
         matmul_ceiling_tflops=ceiling_tflops, matmul_ceilings_tflops=ceilings, copy_gbs=copy_gbs,
-        latency_bound=args.latency_bound, rows=rows,
+        program=args.program, rows=rows,
         reference=None if reference is None else dict(tree=str(args.reference),
                                                       rows=reference["rows"]),
         command=writing.command_line("experiments/bench_learner.py", sys.argv[1:]),
     )  # fmt: skip
     atomic_write_json(args.out / "bench_learner.json", result)
     table = writing.markdown_table(
-        ("precision", "agents", "agent-updates/s", "TFLOP/s", "% of its matmul ceiling",
-         "GFLOP/update (analytic)", "GFLOP/update (XLA)"),
-        [(r["precision"], r["agents"], r["agent_updates_per_s"], r["tflops"], r["pct_ceiling"],
-          r["flops_per_update_analytic"] / 1e9, r["flops_per_update_xla"] / 1e9) for r in rows],
-        formats=("", "", ",.0f", ".2f", ".1f", ".2f", ".2f"),
+        ("precision", "agents", "program", "agent-updates/s", "TFLOP/s",
+         "% of its matmul ceiling", "GFLOP/update (analytic)", "GFLOP/update (XLA)"),
+        [(r["precision"], r["agents"], r["program"], r["agent_updates_per_s"], r["tflops"],
+          r["pct_ceiling"], r["flops_per_update_analytic"] / 1e9, r["flops_per_update_xla"] / 1e9)
+         for r in rows],
+        formats=("", "", "", ",.0f", ".2f", ".1f", ".2f", ".2f"),
         align="r",
     )  # fmt: skip
     lines = [

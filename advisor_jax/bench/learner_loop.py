@@ -10,27 +10,47 @@ from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.contract import spec
-from advisor_jax.training.program import compiler_options, holds_networks, program_layout
+from advisor_jax.training.program import (
+    PROGRAMS,
+    compiler_options,
+    holds_networks,
+    program_layout,
+)
 
 SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=4096, batch_size=128)  # fmt: skip
 
 
-def make_update_loop(cfg, n_updates: int, steady: bool = False):
-    """``n_updates`` calls of the learner's update, the exact step training runs, in a scan,
-    each update deciding its delayed actor step by ``lax.cond`` and compiled with XLA's
-    scheduling, as training's general program runs it.
+def loop_program(cfg, n_updates: int, program: str) -> str:
+    """The program (``program.PROGRAMS``) whose update loop ``make_update_loop`` builds:
+    ``program``, or the general one where ``n_updates`` is not whole blocks of d."""
+    if program not in PROGRAMS:
+        raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
+    return program if n_updates % cfg.delay == 0 else "general"
 
-    ``steady``: the loop as the latency-bound program (populations of at most
-    ``program.LATENCY_BOUND_AGENTS``) runs its updates instead: blocks of d updates
-    written out in a row whose first takes the actor step, no conditional, overlapping
-    kernels and a whole-loop graph. Timed alone that way the update is not faster
-    (``results/bench_train_steady/``): the program pays in the full step, where the
-    collection's kernels overlap the update's, which only ``bench_train.py`` measures."""
+
+def make_update_loop(
+    cfg, n_updates: int, program: str = "general", agents_per_device: int | None = None
+):
+    """``n_updates`` calls of the learner's update, the exact step training runs, in a scan,
+    with the layout and compiler options of training's ``program`` (``program.PROGRAMS``) for
+    ``agents_per_device`` agents on one device (the held critics depend on it,
+    ``program.holds_critics``; None: not known).
+
+    * general: each update decides its delayed actor step by ``lax.cond``, XLA's scheduling.
+    * steady: blocks of d updates written out in a row whose first takes the actor step, no
+      conditional, each loop one graph (what one GPU gives bf16 populations its memory holds).
+    * latency-bound: the steady loop with overlapping kernels (populations of at most
+      ``program.LATENCY_BOUND_AGENTS``). Timed alone that way the update is not faster
+      (``results/bench_train_steady/``): the program pays in the full step, where the
+      collection's kernels overlap the update's, which only ``bench_train.py`` measures.
+
+    A loop that is not whole blocks of d (``loop_program``) runs the general program."""
     hp = HParams()
-    steady, delay = steady and n_updates % cfg.delay == 0, cfg.delay
-    program = "latency-bound" if steady else "general"
-    learner = make_learner(cfg, layout=program_layout(program, cfg.precision))  # as training's
+    program, delay = loop_program(cfg, n_updates, program), cfg.delay
+    steady = program != "general"
+    layout = program_layout(program, cfg.precision, agents_per_device=agents_per_device)
+    learner = make_learner(cfg, layout=layout)  # as training's
 
     def one_agent(learner_state, replay, key):
         def update(carry, u, update_fn=None):
@@ -57,7 +77,8 @@ def make_update_loop(cfg, n_updates: int, steady: bool = False):
         (learner_state, _), _ = jax.lax.scan(body, carry, starts)
         return learner.release(learner_state)
 
-    options = compiler_options(cfg.precision, overlap=steady, steady=steady)  # as training's
+    overlap = program == "latency-bound"
+    options = compiler_options(cfg.precision, overlap=overlap, steady=steady)  # as training's
     return learner, jax.jit(jax.vmap(one_agent), donate_argnums=0, compiler_options=options)
 
 

@@ -1,11 +1,13 @@
-"""``advisor_jax.bench.learner_loop`` times the update step training runs: on GPUs the
-steady program's blocks of d updates (the first with the actor step), with no conditional, else a
-``lax.cond`` per update. Both loops must compute the same updates."""
+"""``advisor_jax.bench.learner_loop`` times the update step training runs: the steady and
+latency-bound programs' blocks of d updates (the first with the actor step), with no
+conditional, or the general program's ``lax.cond`` per update. The loops must compute the same
+updates."""
 
 from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 
 from advisor_jax.agent.config import parse_agent
 from advisor_jax.bench import learner_loop
@@ -16,27 +18,44 @@ TINY_LEARNER = parse_agent(
 )  # fmt: skip
 
 
-def test_the_block_loop_computes_the_conditional_loops_updates():
-    keys = jax.random.split(jax.random.PRNGKey(0), 2)
-    out = {}
-    for steady in (False, True):
-        learner, loop = learner_loop.make_update_loop(TINY_LEARNER, 6, steady=steady)
-        states = jax.jit(jax.vmap(learner.init))(keys)
-        replays = jax.vmap(learner_loop.fill_replay, in_axes=(None, 0))(256, keys)
-        out[steady] = jax.device_get(loop(states, replays, keys))
-    general, steady = out[False], out[True]
-    assert general.actor_updates.tolist() == steady.actor_updates.tolist() == [3, 3]
+def _run(program: str, n_updates: int, n_agents: int = 2):
+    learner, loop = learner_loop.make_update_loop(TINY_LEARNER, n_updates, program, n_agents)
+    keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
+    states = jax.jit(jax.vmap(learner.init))(keys)
+    replays = jax.vmap(learner_loop.fill_replay, in_axes=(None, 0))(256, keys)
+    return jax.device_get(loop(states, replays, keys))
+
+
+@pytest.mark.parametrize("program", ["steady", "latency-bound"])
+def test_the_block_loops_compute_the_conditional_loops_updates(program):
+    general, blocks = _run("general", 6), _run(program, 6)
+    assert general.actor_updates.tolist() == blocks.actor_updates.tolist() == [3, 3]
     assert general.critic_updates.tolist() == [6, 6]
-    for x, y in zip(jax.tree.leaves(general), jax.tree.leaves(steady), strict=True):
+    for x, y in zip(jax.tree.leaves(general), jax.tree.leaves(blocks), strict=True):
         np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-6)
 
 
 def test_a_loop_that_is_not_whole_blocks_keeps_the_conditional():
-    learner, loop = learner_loop.make_update_loop(TINY_LEARNER, 5, steady=True)
-    keys = jax.random.split(jax.random.PRNGKey(0), 1)
-    states = jax.jit(jax.vmap(learner.init))(keys)
-    replays = jax.vmap(learner_loop.fill_replay, in_axes=(None, 0))(256, keys)
-    assert jax.device_get(loop(states, replays, keys)).actor_updates.tolist() == [3]
+    assert learner_loop.loop_program(TINY_LEARNER, 5, "steady") == "general"
+    assert learner_loop.loop_program(TINY_LEARNER, 6, "steady") == "steady"
+    assert _run("latency-bound", 5, n_agents=1).actor_updates.tolist() == [3]
+    with pytest.raises(ValueError, match="stedy"):
+        learner_loop.loop_program(TINY_LEARNER, 6, "stedy")
+
+
+def test_the_loop_takes_the_layout_training_gives_its_program(monkeypatch):
+    """``make_update_loop`` asks ``program_layout`` with the program and agents per device."""
+    asked = []
+    real = learner_loop.program_layout
+
+    def spy(name, precision, backend=None, agents_per_device=None):
+        asked.append((name, precision, agents_per_device))
+        return real(name, precision, backend, agents_per_device)
+
+    monkeypatch.setattr(learner_loop, "program_layout", spy)
+    learner_loop.make_update_loop(TINY_LEARNER, 6, "steady", agents_per_device=128)
+    learner_loop.make_update_loop(TINY_LEARNER, 5, "steady", agents_per_device=128)
+    assert asked == [("steady", "fp32", 128), ("general", "fp32", 128)]
 
 
 def test_the_report_records_its_command(tmp_path, monkeypatch):
