@@ -47,6 +47,7 @@ from advisor_jax.bench.trace import (
     read_trace,
 )
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.program import PROGRAMS
 
 
 # Kernel kinds, tried in order on the lower-cased kernel name.
@@ -133,8 +134,8 @@ def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> 
     writing.write_markdown(out / "profile_learner_ops.md", lines)
 
 
-def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path) -> dict:
-    learner, loop = make_update_loop(cfg, n_updates)
+def profile(cfg, n_agents: int, n_updates: int, trace_dir: Path, program: str = "general") -> dict:
+    learner, loop = make_update_loop(cfg, n_updates, program, agents_per_device=n_agents)
     keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
     states = jax.jit(jax.vmap(learner.init))(keys)
     replays = jax.jit(jax.vmap(fill_replay, in_axes=(None, 0)), static_argnums=0)(
@@ -192,6 +193,9 @@ def main() -> None:
     parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"],
                         help="the learner's precision (AgentConfig.precision)")  # fmt: skip
+    parser.add_argument("--program", default="general", choices=PROGRAMS,
+                        help="the training program whose update loop to trace "
+                             "(learner_loop.make_update_loop)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument(
         "--attribute",
@@ -223,7 +227,7 @@ def main() -> None:
     rows = []
     for i, n in enumerate(args.agents):
         with tempfile.TemporaryDirectory() as tmp:
-            row = profile(cfg, n, args.updates, Path(tmp))
+            row = profile(cfg, n, args.updates, Path(tmp), args.program)
             if args.keep_trace and i == 0:
                 shutil.copy(row["_trace_file"], args.out / "profile_learner_trace.json.gz")
                 (args.out / "profile_learner_hlo.txt.gz").write_bytes(
@@ -242,7 +246,9 @@ def main() -> None:
         for kind, us in row["by_kind_us"].items():
             print(f"  {kind:20s} {100 * us / row['kernel_sum_us']:5.1f} %")
 
-    result = dict(**where, agent=cfg.name, matmul_ceiling_tflops=ceiling, rows=rows)
+    result = dict(
+        **where, agent=cfg.name, matmul_ceiling_tflops=ceiling, program=args.program, rows=rows
+    )
     atomic_write_json(args.out / "profile_learner.json", result)
     lines = [
         "# Where an update's time goes",
@@ -250,7 +256,8 @@ def main() -> None:
         f"{cfg.name}, batch {cfg.batch_size}, actor {cfg.actor_hidden}, critic "
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, precision {cfg.precision}; "
         f"`Learner.update` × {args.updates} "
-        "in one jitted scan, traced with `jax.profiler`.",
+        f"in one jitted scan as training's {args.program} program runs it, traced with "
+        "`jax.profiler`.",
         "",
         f"Device: {where['device']} ({where['backend']}), jax {where['jax']}, {where['date']}. "
         f"fp32 matmul ceiling in the same process: {ceiling:.1f} TFLOP/s.",
