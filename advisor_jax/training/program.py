@@ -143,9 +143,9 @@ def network_layout(backend: str | None = None) -> Layout:
 
 HELD_STEADY_BF16_AGENTS = 256
 """The most agents per device whose bf16 critics the steady program holds (``holds_critics``).
-One H100, jax 0.11.2, against the tree before in one command: 1.02× at 64 agents (twice) and
-1.01× at 256, peak 6.18 / 25.21 GiB against 5.69 / 22.61; at 512 agents 0.93× (the compiler
-wanted 82.5 GiB and rematerialized), peak 48.88 GiB against 45.84
+One H100, jax 0.11.2, held against not held in one command: 1.02× at 64 agents (three
+commands) and 1.01× at 256, peak 6.18 / 25.21 GiB against 5.69 / 22.61; 0.98× at 384; at 512
+agents 0.93× (the compiler wanted 82.5 GiB and rematerialized), peak 48.88 GiB against 45.84
 (``results/bench_held_critics/``)."""
 
 
