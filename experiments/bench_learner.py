@@ -15,9 +15,10 @@ analytic count (printed side by side).
 Writes ``results/bench_learner.md`` and ``results/bench_learner.json`` (``--out``).
 
 ``--reference TREE`` also runs the benchmark of another checkout (e.g. the commit before a
-speed change: ``git worktree add /tmp/ref HEAD~1``, or on the device an untracked copy of
-it, which the ``run`` tool carries) in a subprocess of the same command, with the same
-options, and reports both side by side: the previous numbers always come from the same
+speed change: ``git worktree add /tmp/ref HEAD~1``, or ``git archive HEAD~1 | tar -x -C
+ref`` where a GPU machine gets a copy of the working tree) in a subprocess of the same
+command, with the same options (``--program`` is not passed: older trees lack it), and
+reports both side by side: the previous numbers always come from the same
 machine and the same minute as the new ones.
 """
 
