@@ -61,8 +61,7 @@ def train_command(args: TrainArgs) -> None:
             checkpoint_every=args.checkpoint_every,
             resume=args.resume,
             progress=not args.no_progress,
-            meta={"preset": args.preset}
-            | ({} if args.program == "auto" else {"program": args.program}),
+            meta={"preset": args.preset},  # run_training records the program it builds
             chunk_program=None if args.program == "auto" else args.program,
             devices=args.devices,
             eval_seed=args.eval_seed,

@@ -216,8 +216,9 @@ def test_train_program_reaches_the_built_program_and_run_json(
     tmp_path, monkeypatch, option, expected
 ):
     """``advisor-jax train --program P`` builds program P (auto: ``choose_program``'s, a
-    CPU's general program) and records it among run.json's settings when not auto
-    (``run_training`` records auto's choice: tests/training/test_run.py)."""
+    CPU's general program). The CLI passes it as ``chunk_program`` only: ``run_training``
+    records the program it builds in run.json, explicit or chosen
+    (tests/training/test_run.py)."""
     from advisor_jax.cli.main import main as cli_main
     from advisor_jax.training import host_loop
 
@@ -235,8 +236,7 @@ def test_train_program_reaches_the_built_program_and_run_json(
     monkeypatch.setattr(host_loop, "population_functions", built)
     with pytest.raises(Built):
         cli_main(["train", "--out", str(tmp_path / "run"), "--no-progress", *option])
-    meta = {"preset": "quick"} | ({} if expected is None else {"program": expected})
-    assert asked == [meta, expected or program.choose_program(None)]
+    assert asked == [{"preset": "quick"}, expected or program.choose_program(None)]
 
 
 def test_the_population_functions_pass_the_agents_per_device_to_the_layout(monkeypatch):
