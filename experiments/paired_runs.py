@@ -12,7 +12,7 @@ arena, with the 95 % t interval of the mean difference (``stats.paired_differenc
         --out results/precision_study/held_critics_fp32
 
 Writes ``paired.md`` and ``paired.json`` into ``--out``; refuses runs whose settings,
-seeds or evaluation episodes differ. Where both are single run directories, it also counts the
+seeds or evaluation episodes differ. Where both runs kept metrics.npz, it also counts the
 seeds whose training episodes were the same, episode for episode (``same_episodes``): a change
 that computes exactly what it replaced shows there, where the interval can only say "not
 resolved".
@@ -21,7 +21,6 @@ resolved".
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -70,31 +69,21 @@ EPISODE_ARRAYS = ("outcome", "length", "reward_per_step", "collision_speed")
 """Per-episode arrays of ``metrics.npz`` (seeds × episodes) that ``same_episodes`` compares."""
 
 
-def _episodes_by_seed(run_dir: Path) -> dict[int, tuple] | None:
-    """Seed → its rows of ``EPISODE_ARRAYS``, for one run directory (None: not one)."""
-    if not (run_dir / "metrics.npz").is_file() or not (run_dir / "run.json").is_file():
-        return None
-    seeds = [row["seed"] for row in json.loads((run_dir / "run.json").read_text())["agents"]]
-    with np.load(run_dir / "metrics.npz") as metrics:
-        arrays = [metrics[name] for name in EPISODE_ARRAYS]
-    return {seed: tuple(a[i] for a in arrays) for i, seed in enumerate(seeds)}
-
-
-def same_episodes(control: Path, treatment: Path) -> dict | None:
-    """How many seeds trained the same episodes in both run directories: every entry of
-    ``EPISODE_ARRAYS`` equal (NaN equal to NaN). None unless both are single runs."""
-    c, t = _episodes_by_seed(control), _episodes_by_seed(treatment)
-    if c is None or t is None:
-        return None
-    seeds = sorted(set(c) & set(t))
-    same = [
-        s
+def same_episodes(control: Point, treatment: Point) -> dict | None:
+    """How many seeds trained the same episodes in both points: every entry of
+    ``EPISODE_ARRAYS`` equal (NaN equal to NaN). None where a run lacks metrics.npz."""
+    seeds = sorted(set(control.seeds) & set(treatment.seeds))
+    rows = {
+        s: [(control.seeds[s].episodes(n), treatment.seeds[s].episodes(n)) for n in EPISODE_ARRAYS]
         for s in seeds
-        if all(
-            x.shape == y.shape and np.array_equal(x, y, equal_nan=x.dtype.kind == "f")
-            for x, y in zip(c[s], t[s], strict=True)
-        )
-    ]
+    }
+    if any(c is None or t is None for pairs in rows.values() for c, t in pairs):
+        return None
+
+    def equal(c: np.ndarray, t: np.ndarray) -> bool:
+        return c.shape == t.shape and np.array_equal(c, t, equal_nan=True)
+
+    same = [s for s in seeds if all(equal(c, t) for c, t in rows[s])]
     return dict(arrays=list(EPISODE_ARRAYS), seeds=len(seeds), identical_seeds=same)
 
 
@@ -108,7 +97,7 @@ def main(argv=None) -> int:
     control = the_point(args.control, args.eval_seed)
     treatment = the_point(args.treatment, args.eval_seed)
     rows = compare(control, treatment)
-    episodes = same_episodes(args.control, args.treatment)
+    episodes = same_episodes(control, treatment)
     args.out.mkdir(parents=True, exist_ok=True)
     record = dict(control=str(args.control), treatment=str(args.treatment), arenas=rows)
     if episodes is not None:

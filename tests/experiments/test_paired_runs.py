@@ -54,7 +54,8 @@ def test_seeds_whose_training_episodes_all_match_are_counted(tmp_path):
     treatment = tmp_path / "treatment"
     shutil.copytree(CONTROL, treatment)
     seeds = sorted(_success(CONTROL, "training"))
-    assert paired_runs.same_episodes(CONTROL, treatment)["identical_seeds"] == seeds
+    points = (paired_runs.the_point(CONTROL, None), paired_runs.the_point(treatment, None))
+    assert paired_runs.same_episodes(*points)["identical_seeds"] == seeds
 
     with np.load(treatment / "metrics.npz") as kept:
         metrics = dict(kept)
