@@ -39,7 +39,12 @@ from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.networks import PRECISIONS
 from advisor_jax.agent.replay_buffer import replay_sample
 from advisor_jax.bench import measure, writing
-from advisor_jax.bench.learner_loop import SMALL, fill_replay, loop_program, make_update_loop
+from advisor_jax.bench.learner_loop import (
+    SMALL,
+    fill_replay,
+    make_update_loop,
+    require_whole_blocks,
+)
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import place
@@ -164,6 +169,21 @@ def breakdown(cfg, n_agents: int, n_iters: int) -> list[tuple[str, float]]:
     return rows
 
 
+def reference_program_argv(tree: Path, program: str) -> list[str]:
+    """``--program`` for the reference tree's benchmark: passed where that tree's
+    ``bench_learner.py`` knows it (older trees time the general program only), so that both
+    trees time the same loop; a non-general program against a tree without it is refused."""
+    script = tree / "experiments" / "bench_learner.py"
+    if not script.exists():  # measure.run_reference says so
+        return []
+    if "--program" in script.read_text():
+        return ["--program", program]
+    if program != "general":
+        raise SystemExit(f"--reference {tree}: its bench_learner.py has no --program, so it "
+                         f"would time the general loop, not --program {program}")  # fmt: skip
+    return []
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -183,23 +203,33 @@ def main() -> None:
                         help="the training program whose update loop to time "
                              "(learner_loop.make_update_loop): general (default), steady, "
                              "latency-bound, or auto: what training picks for each population "
-                             "on one device (program.choose_program); not passed to "
-                             "--reference")  # fmt: skip
+                             "on one device (program.choose_program); passed to --reference "
+                             "(which must know it unless general)")  # fmt: skip
     parser.add_argument("--latency-bound", dest="program", action="store_const",
                         const="latency-bound",
                         help="the same as --program latency-bound")  # fmt: skip
     args = parser.parse_args()
+    cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
+    programs = {}  # (precision, agents) -> the program timed
+    for precision, n_agents in itertools.product(args.precision, args.agents):
+        program = args.program
+        if program == "auto":
+            program = choose_program(place(n_agents, 1), precision=precision)
+        try:
+            programs[precision, n_agents] = require_whole_blocks(cfg, args.updates, program)
+        except ValueError as e:
+            parser.error(f"--updates: {e}")
     reference = None
     if args.reference:
         argv = ["--agent", args.agent, "--agents", *map(str, args.agents),
                 "--updates", str(args.updates), "--precision", *args.precision,
                 *(["--small"] if args.small else [])]  # fmt: skip
+        argv += reference_program_argv(args.reference, args.program)
         print(f"reference: {args.reference}")
         reference = measure.run_reference(
             args.reference, "bench_learner.py", argv, "bench_learner.json"
         )
 
-    cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
     where = measure.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
@@ -213,10 +243,7 @@ def main() -> None:
     rows = []
     for precision, n_agents in itertools.product(args.precision, args.agents):
         cfg = dataclasses.replace(cfg, precision=precision)
-        program = args.program
-        if program == "auto":
-            program = choose_program(place(n_agents, 1), precision=precision)
-        program = loop_program(cfg, args.updates, program)
+        program = programs[precision, n_agents]
         learner, loop = make_update_loop(cfg, args.updates, program, agents_per_device=n_agents)
         keys = jax.random.split(jax.random.PRNGKey(0), n_agents)
         states = jax.jit(jax.vmap(learner.init))(keys)

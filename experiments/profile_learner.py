@@ -37,7 +37,12 @@ import jax
 
 from advisor_jax.agent.config import parse_agent
 from advisor_jax.bench import measure, writing
-from advisor_jax.bench.learner_loop import SMALL, fill_replay, make_update_loop
+from advisor_jax.bench.learner_loop import (
+    SMALL,
+    fill_replay,
+    make_update_loop,
+    require_whole_blocks,
+)
 from advisor_jax.bench.trace import (
     busy_us,
     device_events,
@@ -209,6 +214,10 @@ def main() -> None:
     args = parser.parse_args()
     cfg = parse_agent(args.agent, precision=args.precision, **(SMALL if args.small else {}))
     command = writing.command_line("experiments/profile_learner.py", sys.argv[1:])
+    try:
+        require_whole_blocks(cfg, args.updates, args.program)
+    except ValueError as e:
+        parser.error(f"--updates: {e}")
     if args.attribute:
         trace_file, hlo_file = args.attribute
         events, _ = device_events(json.loads(gzip.decompress(trace_file.read_bytes())))

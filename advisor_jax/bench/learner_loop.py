@@ -29,6 +29,18 @@ def loop_program(cfg, n_updates: int, program: str) -> str:
     return program if n_updates % cfg.delay == 0 else "general"
 
 
+def require_whole_blocks(cfg, n_updates: int, program: str) -> str:
+    """``program`` if its loop can run ``n_updates`` updates (``loop_program``); otherwise a
+    ``ValueError`` naming the count, where ``make_update_loop`` would quietly time the general
+    loop instead: what a benchmark asked for is what it times."""
+    if loop_program(cfg, n_updates, program) != program:
+        raise ValueError(
+            f"{n_updates} updates: the {program} loop runs whole blocks of d = {cfg.delay} "
+            f"updates (TD3's delay); give a multiple of {cfg.delay}, or the general program"
+        )
+    return program
+
+
 def make_update_loop(
     cfg, n_updates: int, program: str = "general", agents_per_device: int | None = None
 ):

@@ -71,3 +71,38 @@ def test_the_report_records_its_command(tmp_path, monkeypatch):
     command = json.loads((tmp_path / "bench_learner.json").read_text())["command"]
     assert command == f"python experiments/bench_learner.py {' '.join(argv)} {tmp_path}"
     assert f"Command: `{command}`" in (tmp_path / "bench_learner.md").read_text()
+
+
+def test_the_reference_times_the_same_program(tmp_path):
+    """``--reference`` passes ``--program`` to a tree that knows it; an older tree would time
+    the general loop, so asking it for another program is refused."""
+    from tests.experiments.scripts import load_script
+
+    argv_for = load_script("bench_learner").reference_program_argv
+    script = tmp_path / "experiments" / "bench_learner.py"
+    script.parent.mkdir()
+    script.write_text('parser.add_argument("--program")\n')
+    assert argv_for(tmp_path, "steady") == ["--program", "steady"]
+    script.write_text('parser.add_argument("--agents")\n')
+    assert argv_for(tmp_path, "general") == []
+    with pytest.raises(SystemExit, match="no --program"):
+        argv_for(tmp_path, "steady")
+
+
+def test_a_block_program_refuses_an_update_count_it_would_not_time(monkeypatch, capsys):
+    """``--program steady`` with updates that are not whole blocks of d would time the
+    general loop: the scripts refuse it, naming the count and d, before measuring anything."""
+    import sys
+
+    from tests.experiments.scripts import load_script
+
+    assert learner_loop.require_whole_blocks(TINY_LEARNER, 6, "steady") == "steady"
+    with pytest.raises(ValueError, match="5 updates.*d = 2"):
+        learner_loop.require_whole_blocks(TINY_LEARNER, 5, "steady")
+    for script in ("bench_learner", "profile_learner"):
+        argv = [f"{script}.py", "--small", "--agents", "1", "--updates", "5", "--program", "steady"]
+        monkeypatch.setattr(sys, "argv", argv)
+        with pytest.raises(SystemExit) as exit_:
+            load_script(script).main()
+        assert exit_.value.code == 2
+        assert "d = 4" in capsys.readouterr().err
