@@ -6,7 +6,8 @@ The estimate is read from a table derived from measurements kept in ``results/``
   size (``paper`` and ``stable`` share one) and population size: the rows of
   ``experiments/bench_train.py``'s reports (``results/bench_train*.json``,
   ``results/bench_train_largest/*.json``), ATD3+AfDP, the newest program's rows: those of
-  the newest date with several rows and of any later date (``_newest_program``);
+  the newest date with several rows and of any later date, and older rows of larger
+  populations (``_newest_program``);
 * each agent type's speed relative to ATD3+AfDP and its mean training-episode length, per
   training arena, from kept runs that trained every type alike on one device
   (``results/table1_stable/run_data``, ``results/table2/run_data``): the DDPG family
@@ -78,13 +79,19 @@ def _newest_program(found: list[dict]) -> dict[int, dict]:
     """Rows of one device, precision and size by population: those of the newest date that
     measured several populations (the newest program) and of any later date (single rows,
     such as a larger population), each population's newest; all dates where no date has
-    several rows."""
+    several rows. Populations larger than all of those keep the rows of the newest date
+    that measured such populations: the best measurement of their size, where the table
+    would otherwise clamp them to a far smaller population's rate."""
     by_date = sorted(found, key=lambda r: r["date"], reverse=True)
     dates = [r["date"] for r in by_date]
     base = next((d for d in dates if dates.count(d) >= 2), dates[-1])
     chosen: dict[int, dict] = {}
     for r in by_date:
         if r["date"] >= base:
+            chosen.setdefault(r["agents"], r)
+    larger = [r for r in by_date if r["agents"] > max(chosen)]
+    for r in larger:
+        if r["date"] == larger[0]["date"]:
             chosen.setdefault(r["agents"], r)
     return chosen
 

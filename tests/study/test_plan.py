@@ -175,7 +175,8 @@ def test_time_under_the_mjx_robot_uses_its_measured_speed_and_episode_length(tmp
 
 def test_the_throughput_table_keeps_the_newest_program_and_later_single_rows():
     """The newest date with several populations is the program in use; a later single row
-    (a larger population measured alone) joins it; older rows of other sizes do not."""
+    (a larger population measured alone) joins it; older rows of other sizes do not, but
+    for populations larger than any of those."""
     from advisor_jax.study.throughput import _newest_program
 
     def row(date, agents):
@@ -190,3 +191,8 @@ def test_the_throughput_table_keeps_the_newest_program_and_later_single_rows():
     }
     alone = [row("2026-11-24", 512), row("2026-11-25", 768)]  # no date with several rows
     assert _newest_program(alone) == {768: alone[1], 512: alone[0]}
+    # a newer main table of small populations keeps the newest larger ones beyond it
+    larger = [row("2026-11-27", 1024), row("2026-11-27", 1152), row("2026-11-27", 64),
+              row("2026-11-28", 1), row("2026-11-28", 64), row("2026-11-25", 896)]  # fmt: skip
+    assert _newest_program(larger) == {1: larger[3], 64: larger[4], 1024: larger[0],
+                                       1152: larger[1]}  # fmt: skip
