@@ -144,9 +144,17 @@ def _first_critic_layer_backward(residuals, g):
 first_critic_layer.defvjp(_first_critic_layer_forward, _first_critic_layer_backward)
 
 
-def _head(x: jax.Array, matrix: jax.Array) -> jax.Array:
-    """The fp32 output head (``nn.Dense`` at fp32) on an augmented input."""
-    return _dot(x.astype(jnp.float32), matrix)
+def _head(x: jax.Array, matrix: jax.Array, sums: bool = False) -> jax.Array:
+    """The fp32 output head (``nn.Dense`` at fp32) on an augmented input, ``[..., k] →
+    [..., n]``. ``sums`` (``Layout.head_sums``), from bf16 activations: n products summed
+    over k, which XLA fuses with the cast to fp32 into one pass over ``x``, where the dot
+    first writes ``x`` in fp32 and then runs an fp32 GEMM whose n (the actor's 2 outputs) is
+    too narrow for its tiles (``results/bench_head_sums/``). The same function, summed in
+    another order; fp32 activations keep the dot."""
+    if not sums or x.dtype == jnp.float32:
+        return _dot(x.astype(jnp.float32), matrix)
+    x = x.astype(jnp.float32)
+    return jnp.stack([jnp.sum(x * matrix[:, j], axis=-1) for j in range(matrix.shape[1])], -1)
 
 
 def _head_matrix(dense: dict, k_in: int) -> jax.Array:
@@ -167,12 +175,12 @@ def actor_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
     return [*matrices, _head_matrix(p["head"], k_in)]
 
 
-def actor_forward(matrices: list[jax.Array], obs: jax.Array) -> jax.Array:
-    """π(s; φ) → (V, ω) from ``actor_matrices``."""
+def actor_forward(matrices: list[jax.Array], obs: jax.Array, head_sums: bool = False) -> jax.Array:
+    """π(s; φ) → (V, ω) from ``actor_matrices``; ``head_sums``: ``_head``'s ``sums``."""
     x = with_ones(obs, matrices[0].dtype)
     for matrix in matrices[:-1]:
         x = _hidden(x, matrix)
-    logits = _head(x, matrices[-1])
+    logits = _head(x, matrices[-1], head_sums)
     return jnp.stack([jax.nn.sigmoid(logits[..., 0]), jnp.tanh(logits[..., 1])], axis=-1)
 
 
@@ -222,18 +230,22 @@ def critic_tied_rows(params: Any) -> tuple[int, int, int]:
 
 
 def critic_forward(
-    matrices: list[jax.Array], obs: jax.Array, action: jax.Array, first_layer_kernel: bool = False
+    matrices: list[jax.Array],
+    obs: jax.Array,
+    action: jax.Array,
+    first_layer_kernel: bool = False,
+    head_sums: bool = False,
 ) -> jax.Array:
     """Q(s, a; θ) from ``critic_matrices``. ``first_layer_kernel``: the first layer's weight
     gradient and ReLU mask in one kernel (``first_critic_layer``), for a batch ``[n,
-    ...]`` of its tiles' size; the same function."""
+    ...]`` of its tiles' size; ``head_sums``: ``_head``'s ``sums``; the same function."""
     x = with_ones(jnp.concatenate([obs, action.astype(obs.dtype)], axis=-1), matrices[0].dtype)
     fits = x.ndim == 2 and masked_wgrad.fits(*x.shape, matrices[0].shape[1])
     first = first_critic_layer if first_layer_kernel and fits else _hidden
     x = first(x, matrices[0])  # [h, relu(±a), 1, 0…]
     for matrix in matrices[1:-1]:
         x = _hidden(x, matrix)
-    return _head(x, matrices[-1])[..., 0]
+    return _head(x, matrices[-1], head_sums)[..., 0]
 
 
 def critic_apply(

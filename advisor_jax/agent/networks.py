@@ -141,6 +141,9 @@ class Layout(NamedTuple):
     held_critics: bool = False
     """With ``layers_in_gemm``: through a training chunk the critics' augmented matrices are
     their parameters, so that no step builds them (``held_critics``)."""
+    head_sums: bool = False
+    """With ``layers_in_gemm``: a bf16 network's fp32 output head from its bf16 activations as
+    products summed per output, not a cast and a GEMM (``gemm_layers.actor_forward``)."""
 
 
 MODULES = Layout()
@@ -197,10 +200,11 @@ def learner_functions(
         return NetworkFunctions(_unchanged, actor.apply), NetworkFunctions(_unchanged, critic.apply)
     return (
         NetworkFunctions(partial(gemm_layers.actor_matrices, dtype=actor.dtype),
-                         gemm_layers.actor_forward),
+                         partial(gemm_layers.actor_forward, head_sums=layout.head_sums)),
         NetworkFunctions(partial(gemm_layers.critic_matrices, dtype=critic.dtype),
                          partial(gemm_layers.critic_forward,
-                                 first_layer_kernel=layout.first_layer_kernel)),
+                                 first_layer_kernel=layout.first_layer_kernel,
+                                 head_sums=layout.head_sums)),
     )  # fmt: skip
 
 

@@ -171,15 +171,26 @@ def holds_critics(program: str, precision: str, agents_per_device: int | None = 
     return (program, precision) == ("steady", "bf16") and small
 
 
+def sums_heads(program: str) -> bool:
+    """Whether the chunk's ``program`` computes a bf16 learner's fp32 output heads from its bf16
+    activations as products summed per output (``Layout.head_sums``; only with
+    ``layers_in_gemm``), not a cast and an fp32 GEMM. One H100, jax 0.11.2, against the tree
+    before in one command each: the 128-agent bf16 learner 1.022× (steady program, two
+    commands), the 64-agent bf16 step 1.024×; but the 1-agent step, the latency-bound program,
+    0.98× and 0.963× (two commands), so not there (``results/bench_head_sums/``)."""
+    return program != "latency-bound"
+
+
 def program_layout(
     program: str, precision: str, backend: str | None = None, agents_per_device: int | None = None
 ) -> Layout:
     """``network_layout`` for the chunk's ``program`` and the learners' ``precision``: with the
-    critics held where ``holds_critics`` says for ``agents_per_device`` (only with
-    ``layers_in_gemm``)."""
+    critics held where ``holds_critics`` says for ``agents_per_device`` and the heads summed
+    where ``sums_heads`` says (both only with ``layers_in_gemm``)."""
     layout = network_layout(backend)
-    held = layout.layers_in_gemm and holds_critics(program, precision, agents_per_device)
-    return layout._replace(held_critics=held)
+    gemm = layout.layers_in_gemm
+    held = gemm and holds_critics(program, precision, agents_per_device)
+    return layout._replace(held_critics=held, head_sums=gemm and sums_heads(program))
 
 
 def holds_networks(program: str) -> bool:

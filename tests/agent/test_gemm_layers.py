@@ -105,6 +105,27 @@ def test_the_augmented_matrix_holds_kernel_bias_and_the_ones_column():
     np.testing.assert_array_equal(y[0, 2:], [1.0, 0, 0, 0, 0, 0])  # ones column, padding
 
 
+@pytest.mark.parametrize("n_out", [1, 2])
+def test_the_head_from_bf16_sums_what_the_fp32_dot_sums(n_out):
+    """From bf16 activations the head is products summed per output, with the fp32 dot's
+    value and gradients (the activations' in bf16, as the dot's cast returns them)."""
+    x = jax.random.normal(jax.random.key(1), (5, 40)).astype(jnp.bfloat16)
+    m = jax.random.normal(jax.random.key(2), (40, n_out))
+    dot = lambda x, m: x.astype(jnp.float32) @ m  # noqa: E731
+    sums = partial(gemm_layers._head, sums=True)
+    np.testing.assert_allclose(sums(x, m), dot(x, m), rtol=1e-5, atol=1e-5)
+    loss = lambda f: lambda x, m: jnp.sum(jnp.sin(f(x, m)))  # noqa: E731
+    got = jax.grad(loss(sums), argnums=(0, 1))(x, m)
+    want = jax.grad(loss(dot), argnums=(0, 1))(x, m)
+    assert got[0].dtype == jnp.bfloat16
+    np.testing.assert_allclose(got[0].astype(jnp.float32), want[0].astype(jnp.float32),
+                               rtol=1e-2, atol=1e-2)  # fmt: skip
+    np.testing.assert_allclose(got[1], want[1], rtol=1e-5, atol=1e-5)
+    uses_dot = lambda f, x: "dot_general" in str(jax.make_jaxpr(f)(x, m))  # noqa: E731
+    assert uses_dot(gemm_layers._head, x) and not uses_dot(sums, x)
+    assert uses_dot(sums, x.astype(jnp.float32))  # fp32 activations keep the dot
+
+
 def test_relu_gradient_is_the_modules_relu_gradient():
     x = jnp.asarray([-1.0, 0.0, 2.0, -0.0, 3.5])
     g = jax.grad(lambda v: jnp.sum(gemm_layers.relu(v) * jnp.arange(5.0)))(x)
@@ -150,3 +171,32 @@ def test_gpus_get_the_layout_and_cpus_the_modules():
         bf16_first_moment=True,
     )  # fmt: skip
     assert network_layout("cpu") == networks.MODULES
+
+
+def test_every_gpu_program_but_the_latency_bound_one_sums_its_heads():
+    from advisor_jax.training import program
+
+    for name in program.PROGRAMS:
+        for precision in ("fp32", "bf16"):
+            layout = program.program_layout(name, precision, "gpu", agents_per_device=64)
+            assert layout.head_sums == (name != "latency-bound"), (name, precision)
+            assert not program.program_layout(name, precision, "cpu").head_sums
+
+
+def test_a_learner_with_summed_heads_is_the_same_function(nets):
+    """``Layout.head_sums`` reaches both heads through ``learner_functions``: in bf16 the same
+    Q and π but for the heads' fp32 sums' order, with one GEMM fewer each."""
+    _, _, actor_params, critic_params, obs, action = nets
+    actor = networks.Actor(hidden=(24, 12), dtype=jnp.bfloat16)
+    critic = networks.Critic(30, (20, 12), dtype=jnp.bfloat16)
+    gemm = networks.Layout(layers_in_gemm=True)
+    plain = networks.learner_functions(actor, critic, gemm)
+    summed = networks.learner_functions(actor, critic, gemm._replace(head_sums=True))
+    cases = [(0, actor_params, (obs,)), (1, critic_params, (obs, action))]
+    for i, params, inputs in cases:
+        dots = [str(jax.make_jaxpr(f[i].apply)(params, *inputs)).count("dot_general")
+                for f in (plain, summed)]  # fmt: skip
+        assert dots[1] == dots[0] - 1
+        np.testing.assert_allclose(
+            summed[i].apply(params, *inputs), plain[i].apply(params, *inputs), rtol=1e-5, atol=1e-5
+        )
