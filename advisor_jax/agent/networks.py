@@ -143,7 +143,7 @@ class Layout(NamedTuple):
     their parameters, so that no step builds them (``held_critics``)."""
     head_sums: bool = False
     """With ``layers_in_gemm``: a bf16 network's fp32 output head from its bf16 activations as
-    products summed per output, not a cast and a GEMM (``gemm_layers.actor_forward``)."""
+    products summed per output, not a cast and a GEMM (``gemm_layers``' ``head_sums``)."""
 
 
 MODULES = Layout()

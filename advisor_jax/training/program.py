@@ -16,7 +16,8 @@ leave open:
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
   (``holds_networks``) and whose critics, for fp32 learners in the general program and small
   bf16 populations in the steady one, it holds as the matrices the GEMMs read
-  (``holds_critics``, ``program_layout``), and the critic's first-layer kernel
+  (``holds_critics``, ``program_layout``), whether a bf16 learner's fp32 output heads are
+  products summed per output (``sums_heads``), and the critic's first-layer kernel
   (``agent/masked_wgrad.py``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
