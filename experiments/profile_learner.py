@@ -14,8 +14,9 @@ and, in the same process, the fp32 matmul ceiling.
 Writes ``results/profile_learner.md`` and ``.json`` (``--out``); with ``--keep-trace`` also
 the gzipped trace and the compiled HLO of the first population size, and
 ``profile_learner_ops.md``: every kernel of that trace joined to the HLO instruction that
-launched it (output shape, JAX op name), in ms per update. The join can be redone from
-the kept files, without a GPU:
+launched it (output shape, JAX op name), in ms per update, with each of XLA's own kernels'
+bytes per launch and the GB/s they give (to hold against the device's copy rate). The join
+can be redone from the kept files, without a GPU:
 
     python experiments/profile_learner.py --attribute TRACE.json.gz HLO.txt.gz --agents 128
 """
@@ -47,6 +48,8 @@ from advisor_jax.bench.trace import (
     busy_us,
     device_events,
     hlo_instructions,
+    hlo_name,
+    instruction_bytes,
     instruction_of,
     kind_of,
     read_trace,
@@ -54,14 +57,19 @@ from advisor_jax.bench.trace import (
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.program import PROGRAMS
 
+ADAM = "Adam (and the soft update) over one layer's parameters"
 
-# Kernel kinds, tried in order on the lower-cased kernel name.
+
 def role_of(shape: str, op_name: str) -> str:
-    """What a memory-bound kernel does, from its output and JAX op name."""
-    parts = re.findall(r"f32\[[^\]]*\]", shape)
-    if len(parts) == 3 and len(set(parts)) == 1:
-        return "Adam (parameter, m, v of one layer)"
+    """What a memory-bound kernel does, from its output and JAX op name. Adam's passes write
+    several arrays of one layer's shape (the parameter, its moments, its bf16 copy, the target
+    network's) from an elementwise op."""
+    dims = re.findall(r"\w+\[([^\]]*)\]", shape)
+    elementwise = re.search(r"/(convert_element_type|add|sub|mul)$", op_name)
+    if len(dims) >= 2 and len(set(dims)) == 1 and elementwise:
+        return ADAM
     for pattern, role in (
+        (r"transpose\(.*_where\)+/select_n$", "ReLU's backward mask"),
         (r"relu", "ReLU"),
         (r"transpose\(.*reduce_sum", "bias gradient (reduction over the batch)"),
         (r"transpose\(.*/transpose$", "transpose of an activation (backward)"),
@@ -75,8 +83,12 @@ def role_of(shape: str, op_name: str) -> str:
 
 
 def attribute(events: list[dict], hlo: str, n_updates: int) -> list[dict]:
-    """Kernels by name with the HLO instruction that launched them, ms per update."""
+    """Kernels by name with the HLO instruction that launched them, ms per update, and for
+    XLA's own kernels the bytes of the instruction's operands and output per launch
+    (``trace.instruction_bytes``) and the rate that gives (GB/s, against the device's copy
+    rate: which memory-bound kernels run below it)."""
     instructions = hlo_instructions(hlo)
+    moved = instruction_bytes(hlo)
     rows: dict[str, dict] = {}
     for e in events:
         row = rows.setdefault(e["name"], dict(kernel=e["name"], calls=0, us=0.0))
@@ -92,14 +104,26 @@ def attribute(events: list[dict], hlo: str, n_updates: int) -> list[dict]:
             ms_per_update=row["us"] / n_updates / 1e3,
             calls_per_update=row["calls"] / n_updates,
         )
+        launch_bytes = moved.get(hlo_name(row["kernel"], moved)) if shape else None
+        if launch_bytes:
+            row.update(mb_per_launch=launch_bytes / 1e6,
+                       gb_per_s=launch_bytes * row["calls"] / row["us"] / 1e3)  # fmt: skip
     return sorted(rows.values(), key=lambda r: -r["us"])
 
 
 def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> None:
     total = sum(r["ms_per_update"] for r in rows)
     roles: dict[str, float] = collections.defaultdict(float)
+    moved: dict[str, float] = collections.defaultdict(float)  # GB per update, XLA's kernels
     for r in rows:
         roles[r["role"] or r["kind"]] += r["ms_per_update"]
+        moved[r["role"] or r["kind"]] += r.get("mb_per_launch", 0.0) * r["calls_per_update"] / 1e3
+
+    def rate(role: str) -> str:  # GB/s of a role's kernels, where all of them have bytes
+        timed = sum(r["ms_per_update"] for r in rows
+                    if (r["role"] or r["kind"]) == role and "mb_per_launch" in r)  # fmt: skip
+        return f"{moved[role] / roles[role] * 1e3:,.0f}" if timed == roles[role] > 0 else ""
+
     atomic_write_json(out / "profile_learner_ops.json", dict(title=title, kernels=rows))
     lines = [
         "# Kernels of one update, joined to the HLO that launched them",
@@ -110,28 +134,46 @@ def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> 
         "## By role",
         "",
         *writing.markdown_table(
-            ("role", "ms per update", "%"),
-            [(k, v, 100 * v / total) for k, v in sorted(roles.items(), key=lambda kv: -kv[1])],
-            formats=("", ".3f", ".1f"),
+            ("role", "ms per update", "%", "GB per update", "GB/s"),
+            [
+                (k, v, 100 * v / total, f"{moved[k]:.2f}" if moved[k] else "", rate(k))
+                for k, v in sorted(roles.items(), key=lambda kv: -kv[1])
+            ],  # fmt: skip
+            formats=("", ".3f", ".1f", "", ""),
         ),
         "",
         "## Kernels (top 40)",
         "",
         *writing.markdown_table(
-            ("kernel", "calls/update", "ms/update", "output shape", "role", "JAX op"),
+            (
+                "kernel",
+                "calls/update",
+                "ms/update",
+                "MB/launch",
+                "GB/s",
+                "output shape",
+                "role",
+                "JAX op",
+            ),
             [
                 (
                     r["kernel"][:60],
                     r["calls_per_update"],
                     r["ms_per_update"],
+                    f"{r['mb_per_launch']:,.0f}" if "mb_per_launch" in r else "",
+                    f"{r['gb_per_s']:,.0f}" if "gb_per_s" in r else "",
                     r["shape"][:70],
                     r["role"],
                     r["op"][:80].replace("|", "/"),
                 )
                 for r in rows[:40]
             ],
-            formats=("", ".1f", ".3f", ""),
+            formats=("", ".1f", ".3f", "", ""),
         ),  # fmt: skip
+        "",
+        "MB/launch: the bytes of the HLO instruction's operands and output (each read or "
+        "written once; the GEMMs in library calls have no HLO name); GB/s: those bytes at the "
+        "kernel's measured time, to hold against the device's copy rate.",
         "",
         f"Command: `{command}`",
         "",

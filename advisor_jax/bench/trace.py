@@ -82,11 +82,50 @@ def hlo_instructions(hlo: str) -> dict[str, tuple[str, str]]:
     return out
 
 
+ARRAY = re.compile(r"\b(pred|[subf]\d+|bf16)\[([\d,]*)\]")
+BYTES_PER_ELEMENT = {"pred": 1, "bf16": 2}
+
+
+def shape_bytes(shape: str) -> int:
+    """Bytes of the arrays an HLO shape names (``f32[128,2,1008,504]{3,2,1,0}``, or a tuple of
+    them): elements × their size (``s32`` 4, ``bf16`` 2, ``pred`` 1)."""
+    total = 0
+    for dtype, dims in ARRAY.findall(shape):
+        size = BYTES_PER_ELEMENT.get(dtype) or int(dtype[1:]) // 8
+        for d in filter(None, dims.split(",")):
+            size *= int(d)
+        total += size
+    return total
+
+
+def instruction_bytes(hlo: str) -> dict[str, int]:
+    """HLO instruction name → the bytes of its operands and its output: what one launch of its
+    kernel reads and writes if it touches each operand once (an upper bound where a kernel
+    reads a slice of an operand, a lower one where it reads an operand more than once)."""
+    shapes, operands = {}, {}
+    for line in hlo.splitlines():
+        m = HLO_LINE.match(line)
+        if m:
+            shapes[m.group(1)] = m.group(2)
+            args = line[m.end() : line.find(")", m.end())]
+            operands[m.group(1)] = re.findall(r"%([\w.\-]+)", args)
+    return {
+        name: shape_bytes(shapes[name]) + sum(shape_bytes(shapes.get(o, "")) for o in args)
+        for name, args in operands.items()
+    }
+
+
 def instruction_of(kernel: str, instructions: dict[str, tuple[str, str]]) -> tuple[str, str] | None:
     """(output shape, JAX op name) of the HLO instruction that launched ``kernel`` (XLA names
     the kernel of ``fusion.3`` ``fusion_3``); None for kernels without one (library calls)."""
+    return instructions.get(hlo_name(kernel, instructions))
+
+
+def hlo_name(kernel: str, instructions: dict) -> str:
+    """The HLO instruction name of ``kernel`` (XLA names the kernel of ``fusion.3``
+    ``fusion_3``) where ``instructions`` has it, else the kernel's own name."""
     dotted = re.sub(r"_(\d+)$", r".\1", kernel)
-    return instructions.get(dotted, instructions.get(kernel))
+    return dotted if dotted in instructions else kernel
 
 
 def read_trace(trace_dir: Path) -> tuple[list[dict], str, Path]:
