@@ -113,16 +113,20 @@ def attribute(events: list[dict], hlo: str, n_updates: int) -> list[dict]:
 
 def write_attribution(out: Path, rows: list[dict], title: str, command: str) -> None:
     total = sum(r["ms_per_update"] for r in rows)
-    roles: dict[str, float] = collections.defaultdict(float)
+    roles: dict[str, float] = collections.defaultdict(float)  # ms per update
     moved: dict[str, float] = collections.defaultdict(float)  # GB per update, XLA's kernels
+    unsized: set[str] = set()  # roles with a kernel of unknown bytes (a library call)
     for r in rows:
-        roles[r["role"] or r["kind"]] += r["ms_per_update"]
-        moved[r["role"] or r["kind"]] += r.get("mb_per_launch", 0.0) * r["calls_per_update"] / 1e3
+        role = r["role"] or r["kind"]
+        roles[role] += r["ms_per_update"]
+        if "mb_per_launch" in r:
+            moved[role] += r["mb_per_launch"] * r["calls_per_update"] / 1e3
+        else:
+            unsized.add(role)
 
     def rate(role: str) -> str:  # GB/s of a role's kernels, where all of them have bytes
-        timed = sum(r["ms_per_update"] for r in rows
-                    if (r["role"] or r["kind"]) == role and "mb_per_launch" in r)  # fmt: skip
-        return f"{moved[role] / roles[role] * 1e3:,.0f}" if timed == roles[role] > 0 else ""
+        sized = role not in unsized and roles[role] > 0
+        return f"{moved[role] / roles[role] * 1e3:,.0f}" if sized else ""
 
     atomic_write_json(out / "profile_learner_ops.json", dict(title=title, kernels=rows))
     lines = [
