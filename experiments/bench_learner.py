@@ -17,9 +17,9 @@ Writes ``results/bench_learner.md`` and ``results/bench_learner.json`` (``--out`
 ``--reference TREE`` also runs the benchmark of another checkout (e.g. the commit before a
 speed change: ``git worktree add /tmp/ref HEAD~1``, or ``git archive HEAD~1 | tar -x -C
 ref`` where a GPU machine gets a copy of the working tree) in a subprocess of the same
-command, with the same options (``--program`` is not passed: older trees lack it), and
-reports both side by side: the previous numbers always come from the same
-machine and the same minute as the new ones.
+command, with the same options (``--program`` too, where that tree knows it:
+``reference_program_argv``), and reports both side by side: the previous numbers always come
+from the same machine and the same minute as the new ones.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from advisor_jax.training.program import PROGRAMS, choose_program, network_layou
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
-    "bf16": "bf16 hidden layers (fp32 parameters and accumulation; on GPUs Adam's m in bf16)",
+    "bf16": "bf16 hidden layers (fp32 parameters and accumulation; on GPUs Adam's m and v in bf16)",
 }
 
 

@@ -67,6 +67,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from advisor_jax.agent import adam as optimizer
 from advisor_jax.agent import held_critics
 from advisor_jax.agent.config import AgentConfig, HParams
 from advisor_jax.agent.diagnostics import actor_diagnostics
@@ -116,7 +117,8 @@ def make_learner(
     layout of all this learner's critics, its fp32 acting critic too; whether the learner's
     networks run as ``gemm_layers`` (each hidden layer one GEMM with its bias inside) instead
     of the flax modules, acting (the Eq. 1 selector's Q) keeping the modules; and whether a
-    bf16 learner's Adam keeps its first moment in bf16 (``Layout.bf16_first_moment``).
+    bf16 learner's Adam keeps its moments in bf16 (``Layout.bf16_first_moment``,
+    ``bf16_second_moment``: ``agent/adam.py``).
 
     Long: the factory of the learner's closures (init, selector Q, the two steps, the
     three whole updates and the held targets), which share its networks and settings; each
@@ -129,7 +131,9 @@ def make_learner(
     critic_fp32 = make_critic(cfg)  # the Eq. (1) selector acts: always fp32
     per_critic = layout.inputs_per_critic
     actor_net, critic_net = learner_functions(actor, critic, layout)
-    mu_dtype = jnp.bfloat16 if layout.bf16_first_moment and cfg.precision == "bf16" else None
+    bf16 = cfg.precision == "bf16"
+    mu_dtype = jnp.bfloat16 if layout.bf16_first_moment and bf16 else None
+    nu_bf16 = layout.bf16_second_moment and bf16
     holds_critics = layout.held_critics and layout.layers_in_gemm
     critics_shape = structure = None
     if holds_critics:  # the held matrices' layout, read from the critics' shapes
@@ -139,7 +143,7 @@ def make_learner(
         structure = held_critics.structure(one)
 
     def adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
-        return optax.adam(learning_rate, mu_dtype=mu_dtype)  # lr: a traced hyperparameter
+        return optimizer.adam(learning_rate, mu_dtype, nu_bf16)  # lr: a traced hyperparameter
 
     def build_targets(state: LearnerState) -> tuple[Any, Any]:
         held = state.held is not None

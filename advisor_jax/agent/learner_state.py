@@ -22,7 +22,7 @@ class LearnerState:
     critic: Any  # θ, stacked on a leading axis of n_critics (1 or 2)
     target_actor: Any  # φ^T
     target_critic: Any  # θ^T, same layout as ``critic``
-    actor_opt: Any  # optax Adam state of φ (m in bf16: Layout.bf16_first_moment)
+    actor_opt: Any  # Adam state of φ (agent/adam.py; on GPUs bf16 learners store m, v in bf16)
     critic_opt: Any  # optax Adam state of θ (likewise)
     critic_updates: jax.Array  # int32, t of Alg. A3
     actor_updates: jax.Array  # int32

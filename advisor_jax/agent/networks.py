@@ -136,8 +136,10 @@ class Layout(NamedTuple):
     kernel (``masked_wgrad``)."""
     bf16_first_moment: bool = False
     """A bf16 learner's Adam keeps its first moment in bf16 (``optax.adam``'s ``mu_dtype``):
-    fewer of the optimizer's bytes; the second moment, the parameters and every fp32 learner
-    stay fp32."""
+    fewer of the optimizer's bytes; the parameters and every fp32 learner stay fp32."""
+    bf16_second_moment: bool = False
+    """A bf16 learner's Adam keeps its second moment in bf16, stochastically rounded
+    (``agent/adam.py``); the parameters and every fp32 learner stay fp32."""
     held_critics: bool = False
     """With ``layers_in_gemm``: through a training chunk the critics' augmented matrices are
     their parameters, so that no step builds them (``held_critics``)."""

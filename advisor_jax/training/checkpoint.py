@@ -147,8 +147,9 @@ def _rebuild(stored: dict[str, Any], abstract: Any) -> Any:
     orbax returns a mix of committed and uncommitted arrays, and jit keys its cache on
     that, so a resumed run would otherwise recompile its chunk function. And in the
     abstract leaf's dtype: a checkpoint written before a state's storage changed (a bf16
-    learner's Adam first moment on GPUs, ``networks.Layout.bf16_first_moment``, was fp32
-    before 2026-11-27) resumes rounded to the program's dtypes.
+    learner's Adam moments on GPUs, ``networks.Layout.bf16_first_moment`` and
+    ``bf16_second_moment``: m was fp32 before 2026-11-27, v before 2026-11-28) resumes
+    rounded to the program's dtypes.
     """
     leaves, treedef = jax.tree_util.tree_flatten(abstract)
     full = [

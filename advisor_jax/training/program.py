@@ -134,12 +134,15 @@ def network_layout(backend: str | None = None) -> Layout:
     and 1.04× in fp32, the 64-agent step 1.03× / 1.04×, the 1-agent bf16 step 1.01×, and the
     same updates (bit for bit over 9 bf16 updates; ``results/bench_first_layer_kernel/``).
     A population split over several GPUs runs it too, each device its own agents' kernels
-    (``masked_wgrad.weight_gradient``). A GPU's bf16 learner also keeps Adam's first moment
-    in bf16 (``Layout.bf16_first_moment``): the 128-agent bf16 learner 1.035× on an H100,
-    training unmoved over 16 seeds (``results/bench_bf16_first_moment/``)."""
+    (``masked_wgrad.weight_gradient``). A GPU's bf16 learner also keeps Adam's moments in
+    bf16 (``agent/adam.py``), each change measured on an H100 with training unmoved over 16
+    seeds: the first moment (``Layout.bf16_first_moment``), the 128-agent bf16 learner
+    1.035× (``results/bench_bf16_first_moment/``); the second, stochastically rounded
+    (``bf16_second_moment``), 1.018× (two commands) and the 64-agent step 1.020×
+    (``results/bench_bf16_second_moment/``)."""
     gemm = layers_in_gemm(backend)
     return Layout(twin_inputs_per_critic(backend), gemm, first_layer_kernel=gemm,
-                  bf16_first_moment=gemm)  # fmt: skip
+                  bf16_first_moment=gemm, bf16_second_moment=gemm)  # fmt: skip
 
 
 HELD_STEADY_BF16_AGENTS = 256
