@@ -21,19 +21,14 @@ SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128,
              buffer_size=4096, batch_size=128)  # fmt: skip
 
 
-def loop_program(cfg, n_updates: int, program: str) -> str:
-    """The program (``program.PROGRAMS``) whose update loop ``make_update_loop`` builds:
-    ``program``, or the general one where ``n_updates`` is not whole blocks of d."""
+def require_whole_blocks(cfg, n_updates: int, program: str) -> str:
+    """``program`` (one of ``program.PROGRAMS``) if its loop can run ``n_updates`` updates:
+    any count for the general program, whole blocks of d for the steady and latency-bound
+    ones; otherwise a ``ValueError`` naming the count, so that what a benchmark asks for is
+    what it times (a general loop in their place would time other kernels)."""
     if program not in PROGRAMS:
         raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
-    return program if n_updates % cfg.delay == 0 else "general"
-
-
-def require_whole_blocks(cfg, n_updates: int, program: str) -> str:
-    """``program`` if its loop can run ``n_updates`` updates (``loop_program``); otherwise a
-    ``ValueError`` naming the count, where ``make_update_loop`` would quietly time the general
-    loop instead: what a benchmark asked for is what it times."""
-    if loop_program(cfg, n_updates, program) != program:
+    if program != "general" and n_updates % cfg.delay:
         raise ValueError(
             f"{n_updates} updates: the {program} loop runs whole blocks of d = {cfg.delay} "
             f"updates (TD3's delay); give a multiple of {cfg.delay}, or the general program"
@@ -57,9 +52,9 @@ def make_update_loop(
       (``results/bench_train_steady/``): the program pays in the full step, where the
       collection's kernels overlap the update's, which only ``bench_train.py`` measures.
 
-    A loop that is not whole blocks of d (``loop_program``) runs the general program."""
+    The block programs need ``n_updates`` to be whole blocks of d (``require_whole_blocks``)."""
     hp = HParams()
-    program, delay = loop_program(cfg, n_updates, program), cfg.delay
+    program, delay = require_whole_blocks(cfg, n_updates, program), cfg.delay
     steady = program != "general"
     layout = program_layout(program, cfg.precision, agents_per_device=agents_per_device)
     learner = make_learner(cfg, layout=layout)  # as training's

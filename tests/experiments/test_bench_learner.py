@@ -35,12 +35,13 @@ def test_the_block_loops_compute_the_conditional_loops_updates(program):
         np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-6)
 
 
-def test_a_loop_that_is_not_whole_blocks_keeps_the_conditional():
-    assert learner_loop.loop_program(TINY_LEARNER, 5, "steady") == "general"
-    assert learner_loop.loop_program(TINY_LEARNER, 6, "steady") == "steady"
-    assert _run("latency-bound", 5, n_agents=1).actor_updates.tolist() == [3]
+def test_a_block_loop_of_part_of_a_block_is_refused():
+    assert _run("general", 5, n_agents=1).actor_updates.tolist() == [3]
+    for program in ("steady", "latency-bound"):
+        with pytest.raises(ValueError, match="5 updates.*d = 2"):
+            learner_loop.make_update_loop(TINY_LEARNER, 5, program)
     with pytest.raises(ValueError, match="stedy"):
-        learner_loop.loop_program(TINY_LEARNER, 6, "stedy")
+        learner_loop.make_update_loop(TINY_LEARNER, 6, "stedy")
 
 
 def test_the_loop_takes_the_layout_training_gives_its_program(monkeypatch):
@@ -54,8 +55,8 @@ def test_the_loop_takes_the_layout_training_gives_its_program(monkeypatch):
 
     monkeypatch.setattr(learner_loop, "program_layout", spy)
     learner_loop.make_update_loop(TINY_LEARNER, 6, "steady", agents_per_device=128)
-    learner_loop.make_update_loop(TINY_LEARNER, 5, "steady", agents_per_device=128)
-    assert asked == [("steady", "fp32", 128), ("general", "fp32", 128)]
+    learner_loop.make_update_loop(TINY_LEARNER, 5, "general", agents_per_device=64)
+    assert asked == [("steady", "fp32", 128), ("general", "fp32", 64)]
 
 
 def test_the_report_records_its_command(tmp_path, monkeypatch):
