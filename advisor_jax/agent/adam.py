@@ -71,7 +71,7 @@ def scale_by_adam(
     """``optax.scale_by_adam`` (its state, ``optax.ScaleByAdamState``, and its arithmetic: the
     same updates bit for bit when ``nu_bf16`` is off), with v stored in bf16 by stochastic
     rounding when ``nu_bf16`` is on: the step is the one fp32 v gives, only the stored v is
-    rounded. Needs the parameters (``update(g, state, params)``): their low bits are the
+    rounded. Needs the parameters (``update(g, state, params)``): their bits hash to the
     rounding's random bits (``dither``)."""
     inner = optax.scale_by_adam(b1, b2, eps, mu_dtype=mu_dtype)
     if not nu_bf16:

@@ -69,11 +69,11 @@ def test_off_it_is_optax_adam():
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
-def _track(nu_bf16: bool, steps: int):
-    """v after ``steps`` Adam steps of noisy gradients, stored as ``nu_bf16`` says; and
-    optax's fp32 v on the same gradients and parameters."""
+def _track(steps: int):
+    """v after ``steps`` Adam steps of noisy gradients, stored in bf16; and optax's fp32 v on
+    the same gradients and parameters."""
     params = {"w": jax.random.normal(jax.random.key(0), (4096,)) * 0.05}
-    ours = adam.scale_by_adam(mu_dtype=jnp.bfloat16, nu_bf16=nu_bf16)
+    ours = adam.scale_by_adam(mu_dtype=jnp.bfloat16, nu_bf16=True)
     fp32 = optax.scale_by_adam(mu_dtype=jnp.bfloat16)
 
     def step(carry, key):
@@ -89,7 +89,7 @@ def _track(nu_bf16: bool, steps: int):
 
 
 def test_the_stored_v_follows_the_fp32_v():
-    nu, nu_fp32 = _track(nu_bf16=True, steps=3000)
+    nu, nu_fp32 = _track(steps=3000)
     assert nu.dtype == jnp.bfloat16 and nu_fp32.dtype == jnp.float32
     ratio = np.asarray(nu.astype(jnp.float32) / nu_fp32, np.float64)
     # exact on average; each entry within a few percent (the rounding's noise, averaged by
