@@ -161,16 +161,24 @@ def test_the_selector_reads_the_held_critics():
     )
 
 
-def test_fp32_general_and_small_bf16_steady_learners_hold_their_critics_on_gpus():
-    most = program.HELD_STEADY_BF16_AGENTS
-    assert program.program_layout("general", "fp32", "gpu").held_critics
-    assert program.program_layout("steady", "bf16", "gpu", agents_per_device=most).held_critics
+def test_which_learners_hold_their_critics_on_gpus():
+    most, fewest = program.HELD_STEADY_BF16_AGENTS, program.HELD_LATENCY_BOUND_AGENTS
+    held = [
+        ("general", "fp32", None),
+        ("steady", "bf16", most),
+        ("latency-bound", "bf16", fewest),
+        ("latency-bound", "bf16", program.LATENCY_BOUND_AGENTS),
+    ]
+    for name, precision, agents in held:
+        layout = program.program_layout(name, precision, "gpu", agents_per_device=agents)
+        assert layout.held_critics, (name, precision, agents)
     not_held = [
         ("steady", "bf16", most + 1),
         ("steady", "bf16", None),
         ("steady", "fp32", 64),
-        ("latency-bound", "fp32", 8),
-        ("latency-bound", "bf16", 8),
+        ("latency-bound", "fp32", program.LATENCY_BOUND_AGENTS),
+        ("latency-bound", "bf16", fewest - 1),
+        ("latency-bound", "bf16", None),
         ("general", "bf16", 64),
     ]
     for name, precision, agents in not_held:

@@ -252,3 +252,21 @@ def test_the_population_functions_pass_the_agents_per_device_to_the_layout(monke
     program.population_functions(TINY, place(3, 1), "steady")
     program.population_functions(TINY, None, "steady")
     assert asked == [3, None]
+
+
+def test_the_latency_bound_program_holds_bf16_networks_from_its_fewest_agents(monkeypatch):
+    """``population_functions`` has ``make_train`` hold the learner's networks as
+    ``holds_networks`` says for its placement's agents per device and its precision."""
+    held = []
+    real = program.make_train
+
+    def spy(cfg, steady, layout, hold):
+        held.append(hold)
+        return real(cfg, steady, layout, hold)
+
+    monkeypatch.setattr(program, "make_train", spy)
+    fewest = program.HELD_LATENCY_BOUND_AGENTS
+    bf16 = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
+    for cfg, agents in [(bf16, fewest), (bf16, fewest - 1), (TINY, fewest)]:
+        program.population_functions(cfg, place(agents, 1), "latency-bound")
+    assert held == [True, False, False]
