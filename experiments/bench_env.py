@@ -277,7 +277,7 @@ def main(args: Args) -> dict:
         hlo = jax.jit(jax.vmap(env.step)).lower(state, jnp.zeros((n, 2))).compile().as_text()
         atomic_write_text(args.out + "_hlo.txt", hlo)
     if args.ceiling:
-        result["ceiling"] = {  # 1 GiB; 8192² fp32 at JAX's default precision
+        result["ceiling"] = {  # 1 GiB; 8192² fp32 at JAX's default precision, chained on GPUs
             "copy_bytes_per_s": measure.copy_ceiling(2**30, args.repeats),
             "matmul_flops_per_s": measure.matmul_ceiling(8192, args.repeats),
         }

@@ -155,7 +155,9 @@ def chained_matmuls(a: Any, c: Any, steps: int) -> Any:
     return jax.lax.fori_loop(0, steps, lambda _, x: a @ x, c)
 
 
-def matmul_ceiling(n: int, repeats: int = 5, dtype: Any = "float32", chain: int = CHAIN) -> float:
+def matmul_ceiling(
+    n: int, repeats: int = 5, dtype: Any = "float32", chain: int | None = None
+) -> float:
     """FLOP/s of ``n``×``n`` matmuls, fp32 at JAX's default precision (TF32 on recent NVIDIA
     GPUs) or ``dtype="bfloat16"``: the rate a dense network could sustain on this device,
     this run. Timed as ``chain`` dependent products in one jitted loop (``chained_matmuls``),
@@ -165,9 +167,13 @@ def matmul_ceiling(n: int, repeats: int = 5, dtype: Any = "float32", chain: int 
 
     Until 2026-11-28 the ceiling was one product per call (``chain=1``). On an H100 that read
     bf16 639–711 TFLOP/s within one process and 633–723 between processes, against 699–739
-    for 20 products a call; fp32 336–371 against 355–358 (``results/bench_ceiling/``)."""
+    for 20 products a call; fp32 336–371 against 355–358 (``results/bench_ceiling/``).
+    ``chain`` None: ``CHAIN`` on an accelerator, 1 on a CPU, where one 8192² product takes
+    seconds and the chain would take minutes for nothing: a dispatch is nothing beside it."""
     import jax
 
+    if chain is None:
+        chain = 1 if jax.default_backend() == "cpu" else CHAIN
     a = (jax.random.normal(jax.random.PRNGKey(0), (n, n)) / n**0.5).astype(dtype)
     c = jax.random.normal(jax.random.PRNGKey(1), (n, n)).astype(dtype)
     products = jax.jit(functools.partial(chained_matmuls, steps=chain))

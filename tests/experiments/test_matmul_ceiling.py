@@ -38,3 +38,10 @@ def test_the_ceiling_study_times_both_ways_in_every_round(tmp_path):
     ]
     assert all(r["one_product"] > 0 and r["chained"] > 0 for r in rows)
     assert all(0.1 < r["mag"] < 10 for r in rows)  # the chain kept its scale
+
+
+def test_a_cpu_times_one_product_per_call_unless_told(monkeypatch):
+    monkeypatch.setattr(measure, "first_and_best", lambda fn, repeats: (fn(), 1.0))
+    assert jax.default_backend() == "cpu"
+    assert measure.matmul_ceiling(64) == pytest.approx(2 * 64**3)
+    assert measure.matmul_ceiling(64, chain=measure.CHAIN) == pytest.approx(2 * 64**3 * 20)
