@@ -1,6 +1,6 @@
-"""The matmul ceiling two ways, interleaved in one process: one product per timed call (the
-ceiling every learner report used until 2026-11-28) and ``measure.matmul_ceiling``'s chain of
-dependent products per call (since). The GPU's SM clock, power and throttle reasons are read
+"""The matmul ceiling two ways, interleaved in one process: ``measure.matmul_ceiling`` with one
+product per timed call (as every learner report took it until 2026-11-28) and with its chain
+of dependent products per call (since). The GPU's SM clock, power and throttle reasons are read
 after each.
 
     python experiments/bench_ceiling.py --out ceiling.json     # on the GPU; run it in several
@@ -16,7 +16,6 @@ import argparse
 import json
 import subprocess
 
-import jax
 import jax.numpy as jnp
 
 from advisor_jax.bench import measure
@@ -33,19 +32,9 @@ def gpu_state() -> str:
         return str(e)
 
 
-def one_product_ceiling(n: int, dtype: str, repeats: int = 5) -> float:
-    """FLOP/s of one ``n``×``n`` product per timed call, best of ``repeats``: the ceiling as
-    ``measure.matmul_ceiling`` took it until 2026-11-28."""
-    a = jax.random.normal(jax.random.PRNGKey(0), (n, n)).astype(dtype)
-    matmul = jax.jit(lambda p, q: p @ q)
-    return 2 * n**3 / measure.first_and_best(lambda: matmul(a, a), repeats)[1]
-
-
 def chain_magnitude(n: int, dtype: str, chain: int) -> float:
     """Mean |entry| after ``measure.matmul_ceiling``'s chain: neither overflowed nor vanished."""
-    a = (jax.random.normal(jax.random.PRNGKey(0), (n, n)) / n**0.5).astype(dtype)
-    c = jax.random.normal(jax.random.PRNGKey(1), (n, n)).astype(dtype)
-    out = measure.chained_matmuls(a, c, chain)
+    out = measure.chained_matmuls(*measure.chain_operands(n, dtype), chain)
     return float(jnp.abs(out.astype(jnp.float32)).mean())
 
 
@@ -59,7 +48,7 @@ def main(argv=None) -> list[dict]:
     rows = []
     for dtype in ("bfloat16", "float32"):
         for r in range(args.rounds):
-            single = one_product_ceiling(args.size, dtype) / 1e12
+            single = measure.matmul_ceiling(args.size, dtype=dtype, chain=1) / 1e12
             after_single = gpu_state()
             chained = measure.matmul_ceiling(args.size, dtype=dtype, chain=args.chain) / 1e12
             magnitude = chain_magnitude(args.size, dtype, args.chain)

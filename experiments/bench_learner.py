@@ -234,7 +234,7 @@ def main() -> None:
     where = measure.provenance()
     device = f"{where['device']} ({where['backend']}), jax {where['jax']}"
     print(f"device: {device}")
-    size, chain = (1024, 2) if args.small else (8192, measure.CHAIN)
+    size, chain = 2048 if args.small else 8192, measure.default_chain()
     ceilings = {p: measure.matmul_ceiling(size, dtype=PRECISIONS[p], chain=chain) / 1e12
                 for p in args.precision}  # fmt: skip
     ceiling_tflops = ceilings.get("fp32") or measure.matmul_ceiling(size, chain=chain) / 1e12

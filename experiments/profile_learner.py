@@ -276,8 +276,7 @@ def main() -> None:
         write_attribution(args.out, attribute(events, hlo, args.updates), title, command)
         return
     where = measure.provenance()
-    size, chain = (1024, 2) if args.small else (8192, measure.CHAIN)
-    ceiling = measure.matmul_ceiling(size, chain=chain) / 1e12
+    ceiling = measure.matmul_ceiling(2048 if args.small else 8192) / 1e12
     print(f"device: {where['device']} ({where['backend']}); fp32 matmul {ceiling:.1f} TFLOP/s")
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -147,6 +147,24 @@ CHAIN = 20
 """Dependent matmuls per timed call of ``matmul_ceiling``."""
 
 
+def default_chain() -> int:
+    """``matmul_ceiling``'s chain where none is given: ``CHAIN`` on an accelerator, 1 on a CPU,
+    where one 8192² product takes seconds and the chain would take minutes for nothing (a
+    dispatch is nothing beside it)."""
+    import jax
+
+    return 1 if jax.default_backend() == "cpu" else CHAIN
+
+
+def chain_operands(n: int, dtype: Any) -> tuple[Any, Any]:
+    """(a, c) of ``chained_matmuls``, ``n``×``n`` in ``dtype``: ``a`` with entries of variance
+    1/n, so that the products keep their scale."""
+    import jax
+
+    a = (jax.random.normal(jax.random.PRNGKey(0), (n, n)) / n**0.5).astype(dtype)
+    return a, jax.random.normal(jax.random.PRNGKey(1), (n, n)).astype(dtype)
+
+
 def chained_matmuls(a: Any, c: Any, steps: int) -> Any:
     """``a`` to the power ``steps`` times ``c``, one product after another in a ``fori_loop``:
     each product reads the one before, so none can be skipped, hoisted or run beside another."""
@@ -163,19 +181,15 @@ def matmul_ceiling(
     this run. Timed as ``chain`` dependent products in one jitted loop (``chained_matmuls``),
     the best of ``repeats`` calls after a compiling one, so that the GPU runs them back to
     back as a training loop runs its GEMMs, with one dispatch and one wait per ``chain``
-    products. ``a`` has entries of variance 1/n, so the products keep their scale.
+    products (``chain_operands``; None: ``default_chain``).
 
     Until 2026-11-28 the ceiling was one product per call (``chain=1``). On an H100 that read
     bf16 639–711 TFLOP/s within one process and 633–723 between processes, against 699–739
-    for 20 products a call; fp32 336–371 against 355–358 (``results/bench_ceiling/``).
-    ``chain`` None: ``CHAIN`` on an accelerator, 1 on a CPU, where one 8192² product takes
-    seconds and the chain would take minutes for nothing: a dispatch is nothing beside it."""
+    for 20 products a call; fp32 336–371 against 355–358 (``results/bench_ceiling/``)."""
     import jax
 
-    if chain is None:
-        chain = 1 if jax.default_backend() == "cpu" else CHAIN
-    a = (jax.random.normal(jax.random.PRNGKey(0), (n, n)) / n**0.5).astype(dtype)
-    c = jax.random.normal(jax.random.PRNGKey(1), (n, n)).astype(dtype)
+    chain = default_chain() if chain is None else chain
+    a, c = chain_operands(n, dtype)
     products = jax.jit(functools.partial(chained_matmuls, steps=chain))
     return 2 * n**3 * chain / first_and_best(lambda: products(a, c), repeats)[1]
 
