@@ -91,7 +91,9 @@ def update_check(
             state = learner.hold(state)
             for u in range(n_updates):
                 k_sample, k_critic = jax.random.split(jax.random.key(10 + u))
-                state, _, _ = learner.update(state, replay, k_sample, k_critic, HParams(), u)
+                state, _, _ = learner.update(
+                    state, learner.sample(replay, k_sample), k_critic, HParams(), u
+                )
             return learner.release(state)
 
         return jax.jit(jax.vmap(run), compiler_options=compiler_options(precision))

@@ -70,7 +70,9 @@ def parity(precision: str, n_agents: int, n_updates: int, small: bool, critics: 
         state = learner.hold(state) if hold else state
         for u in range(n_updates):
             k_sample, k_critic = jax.random.split(jax.random.key(10 + u))
-            state, _, _ = learner.update(state, replay, k_sample, k_critic, HParams(), u)
+            state, _, _ = learner.update(
+                state, learner.sample(replay, k_sample), k_critic, HParams(), u
+            )
         return learner.release(state)
 
     init = jax.jit(jax.vmap(learners[0][0].init))(keys)

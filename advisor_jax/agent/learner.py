@@ -2,7 +2,8 @@
 
 One implementation, configured by ``AgentConfig`` (``algo``, ``advisor_policy``).
 ``Learner.update`` is the one update step that training, the learner benchmark and the
-tests run: it samples a batch B from the replay buffer, calls ``critic_step`` and then,
+tests run: on a batch B drawn from the replay buffer (``Learner.sample``), it calls
+``critic_step`` and then,
 every ``cfg.delay``-th update (every update for the DDPG family), ``actor_step`` on the
 same batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3 steps 9-22)::
 
@@ -314,12 +315,13 @@ def make_learner(
         }
         return new_state, metrics
 
-    def sample_and_critic(state, replay, sample_key, critic_key, hp):
+    def sample(replay: ReplayState, key: jax.Array) -> Transition:
         with jax.named_scope("replay_sample"):  # scopes: labels for profiles, nothing else
-            batch = replay_sample(replay, sample_key, cfg.batch_size)
+            return replay_sample(replay, key, cfg.batch_size)
+
+    def critic_on(state, batch, critic_key, hp):
         with jax.named_scope("critic_step"):
-            state, critic_metrics = critic_step(state, batch, critic_key, hp)
-        return state, batch, critic_metrics
+            return critic_step(state, batch, critic_key, hp)
 
     def skip_actor(state, batch, hp, episode):
         return state, nan_like(jax.eval_shape(actor_step, state, batch, hp, episode)[1])
@@ -330,17 +332,16 @@ def make_learner(
 
     def update(
         state: LearnerState,
-        replay: ReplayState,
-        sample_key: jax.Array,
+        batch: Transition,
         critic_key: jax.Array,
         hp: HParams,
         update_index: jax.Array | int,
         episode: jax.Array | int = 0,
     ) -> tuple[LearnerState, Metrics, jax.Array]:
-        """One update (Alg. 2 steps 6-15, Alg. A3 steps 9-22): sample, critic, delayed actor.
+        """One update (Alg. 2 steps 7-15, Alg. A3 steps 10-22) on B: critic, delayed actor.
 
         Args:
-          sample_key: draws the batch; critic_key: TD3's target smoothing noise.
+          batch: B, drawn by ``sample``; critic_key: TD3's target smoothing noise.
           update_index: global index of this update; the actor step runs when
             ``update_index % d == 0`` (``lax.cond``). Pass it *unbatched* under ``vmap``:
             the test then stays a scalar and the cond really skips the actor step instead
@@ -351,7 +352,7 @@ def make_learner(
           The new state; the critic and actor metrics (the actor's NaN on updates that
           skip it); and whether any loss computed in this update was non-finite.
         """
-        state, batch, critic_metrics = sample_and_critic(state, replay, sample_key, critic_key, hp)
+        state, critic_metrics = critic_on(state, batch, critic_key, hp)
         with jax.named_scope("actor_step"):
             took_actor = update_index % cfg.delay == 0
             state, actor_metrics = jax.lax.cond(
@@ -362,19 +363,19 @@ def make_learner(
             )
         return finish(state, critic_metrics, actor_metrics, took_actor)
 
-    def update_with_actor(state, replay, sample_key, critic_key, hp, episode=0):
+    def update_with_actor(state, batch, critic_key, hp, episode=0):
         """``update`` at an index where the delay takes the actor step, compiled with no
         conditional (a caller that knows the schedule statically: the steady program of
         ``training.train``, which a GPU runs as one graph of overlapping kernels)."""
-        state, batch, critic_metrics = sample_and_critic(state, replay, sample_key, critic_key, hp)
+        state, critic_metrics = critic_on(state, batch, critic_key, hp)
         with jax.named_scope("actor_step"):
             state, actor_metrics = actor_step(state, batch, hp, episode)
         return finish(state, critic_metrics, actor_metrics, jnp.ones((), bool))
 
-    def update_critic_only(state, replay, sample_key, critic_key, hp, episode=0):
+    def update_critic_only(state, batch, critic_key, hp, episode=0):
         """``update`` at an index where the delay skips the actor step, with no conditional
         (as ``update_with_actor``); the actor metrics are NaN."""
-        state, batch, critic_metrics = sample_and_critic(state, replay, sample_key, critic_key, hp)
+        state, critic_metrics = critic_on(state, batch, critic_key, hp)
         with jax.named_scope("actor_step"):
             state, actor_metrics = skip_actor(state, batch, hp, episode)
         return finish(state, critic_metrics, actor_metrics, jnp.zeros((), bool))
@@ -382,6 +383,7 @@ def make_learner(
     return Learner(
         init=init,
         q_select=q_select,
+        sample=sample,
         critic_step=critic_step,
         actor_step=actor_step,
         update=update,

@@ -46,20 +46,22 @@ class Learner(NamedTuple):
     q_select: Callable[[LearnerState, jax.Array, jax.Array], jax.Array]
     """(state, obs [..., 20], action [..., 2]) -> Q [...] for the Eq. (1) selector, at fp32:
     the min over the critics (Alg. A2 steps 11-12); Q itself for one critic."""
+    sample: Callable[[Any, jax.Array], Transition]
+    """(replay, key) -> B: ``batch_size`` transitions drawn uniformly, with replacement."""
     critic_step: Callable[[LearnerState, Transition, jax.Array, HParams], tuple[Any, Metrics]]
     """(state, batch, key, hp) -> (state, metrics): one critic update."""
     actor_step: Callable[..., tuple[Any, Metrics]]
     """(state, batch, hp, episode=0) -> (state, metrics): one actor update and the soft update
     of all targets; ``episode`` (episodes completed) gates the AfP replacement by N_P."""
     update: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, update_index, episode=0) -> (state,
-    metrics, nonfinite): one whole update, its delayed actor step decided from
-    ``update_index`` (see ``make_learner``)."""
+    """(state, batch, critic_key, hp, update_index, episode=0) -> (state, metrics,
+    nonfinite): one whole update on ``batch`` (from ``sample``), its delayed actor step
+    decided from ``update_index`` (see ``make_learner``)."""
     update_with_actor: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
+    """(state, batch, critic_key, hp, episode=0) -> as ``update`` at an index
     that takes the actor step, with no conditional."""
     update_critic_only: Callable[..., tuple[Any, Metrics, jax.Array]]
-    """(state, replay, sample_key, critic_key, hp, episode=0) -> as ``update`` at an index
+    """(state, batch, critic_key, hp, episode=0) -> as ``update`` at an index
     that skips it, with no conditional."""
     hold: Callable[[LearnerState], LearnerState]
     """(state) -> the state holding its target networks built (``LearnerState.target_nets``)

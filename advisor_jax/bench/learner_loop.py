@@ -64,9 +64,11 @@ def make_update_loop(
             state, key = carry
             key, k_sample, k_critic = jax.random.split(key, 3)
             if update_fn is None:  # the delay decided from the index by a cond
-                state, _, _ = learner.update(state, replay, k_sample, k_critic, hp, u)
+                state, _, _ = learner.update(
+                    state, learner.sample(replay, k_sample), k_critic, hp, u
+                )
             else:
-                state, _, _ = update_fn(state, replay, k_sample, k_critic, hp)
+                state, _, _ = update_fn(state, learner.sample(replay, k_sample), k_critic, hp)
             return (state, key), None
 
         def block(carry, u):  # d updates from u, a multiple of d, written out as training's

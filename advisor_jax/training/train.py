@@ -11,16 +11,18 @@ One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
                            a = a_adv with probability ε, else a_act       # step 12
                   a = clip(a + Ornstein–Uhlenbeck noise, action box)      # step 13
                   s', r, terminal = env.step(s, a)     (auto-reset)       # steps 14-15
-                  replay.add(s, a, a_adv, r, s', terminal)                # step 16
         learn:    once the buffer holds `warmup` transitions, `updates_per_step` times:
-                      Learner.update: B = replay.sample(n);  critic_step(B)    # Alg. 2 6-8
+                      B = replay.sample(n)    (the buffer before this step's transition)
+                      Learner.update: critic_step(B)                           # Alg. 2 6-8
                       every d-th update: actor_step(B) + soft targets          # Alg. 2 9-15
+        store:    replay.add(s, a, a_adv, r, s', terminal)    # Alg. 1 step 16, after the draw
         finish:   a non-finite loss freezes the agent; actor snapshots
     chunk(state, hp, first_step) = scan(step, t = first_step .. first_step + chunk_steps - 1)
 
+Collect and learn both read the state the step starts from (``training/draws.py``).
 ``make_core`` builds these pieces; ``make_train`` scans them into the paper's agents'
-program. A baseline's prior-knowledge phases (LfD, MCP+MF) are a program of their own built
-from the same pieces (``training/prior/``); ``training/program.py`` picks the program.
+program; a baseline's (LfD, MCP+MF) is built from them in ``training/prior/``;
+``training/program.py`` picks the program.
 
 Episode budget. An agent is *active* until it has completed N_total episodes (or its losses
 went non-finite). An inactive agent keeps stepping (it is one lane of a vmapped program) but
@@ -61,11 +63,12 @@ from advisor_jax.agent.hparams import HParams
 from advisor_jax.agent.learner import Learner, make_learner, nan_like
 from advisor_jax.agent.networks import MODULES, Layout, make_actor
 from advisor_jax.agent.noise import ou_init, ou_reset, ou_step
-from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
+from advisor_jax.agent.replay_buffer import Transition, replay_init
 from advisor_jax.agent.selector import select_action
 from advisor_jax.agent.settings import freeze
 from advisor_jax.contract import spec
 from advisor_jax.training.advisor_source import resolve_advisor
+from advisor_jax.training.draws import Draws, draw_minibatches, store_after
 from advisor_jax.training.state import (
     EpisodeLog,
     TrainState,
@@ -97,8 +100,10 @@ class Core(NamedTuple):
     """(state, key, env_state, noise_state, replay, fired [E], done [E], active, advisor
     memory) -> state: the step's env, noise, buffer, advisor memory and key kept, and its
     finished episodes logged."""
-    learn: Callable[[TrainState, HParams, jax.Array], tuple[TrainState, Metrics, jax.Array]]
-    """(state, hp, step index) -> (state, metrics, nonfinite): the step's updates."""
+    draw: Callable[[TrainState], Draws]
+    """(state) -> the step's minibatches from ``state.replay`` (``training/draws.py``)."""
+    learn: Callable[..., tuple[TrainState, Metrics, jax.Array]]
+    """(state, hp, step index, draws) -> (state, metrics, nonfinite): the updates on ``draws``."""
     learn_past_warmup: Callable[[Callable], Callable]
     """(a ``Learner`` update) -> ``learn`` for steps past warm-up, with no conditional."""
     finish: Callable[..., tuple[TrainState, Metrics]]
@@ -211,53 +216,51 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
             key=key,
         )
 
-    def run_updates(learner_state, state: TrainState, hp: HParams, step_index, key, update):
-        """`updates_per_step` calls of ``update`` (a ``Learner`` update) from
-        ``learner_state`` on ``state``'s buffer: (learner state, mean metrics, whether any
-        computed loss was non-finite)."""
+    def draw(state: TrainState) -> Draws:
+        return draw_minibatches(learner, cfg.updates_per_step, state.replay, state.key)
 
-        def one_update(carry, u):
-            learner_state, key = carry
-            key, k_sample, k_critic = jax.random.split(key, 3)
+    def run_updates(learner_state, state: TrainState, hp: HParams, step_index, draws, update):
+        """`updates_per_step` calls of ``update`` (a ``Learner`` update) from
+        ``learner_state`` on ``draws``: (learner state, mean metrics, whether any computed
+        loss was non-finite)."""
+
+        def one_update(learner_state, xs):
+            u, batch, k_critic = xs
             index = step_index * cfg.updates_per_step + u  # unbatched: a static schedule
             learner_state, metrics, bad = update(
-                learner_state, state.replay, k_sample, k_critic, hp, index, state.episodes
+                learner_state, batch, k_critic, hp, index, state.episodes
             )
-            return (learner_state, key), (metrics, bad)
+            return learner_state, (metrics, bad)
 
-        (learner_state, _), (metrics, bad) = jax.lax.scan(
-            one_update, (learner_state, key), jnp.arange(cfg.updates_per_step)
-        )
+        xs = (jnp.arange(cfg.updates_per_step), draws.batches, draws.critic_keys)
+        learner_state, (metrics, bad) = jax.lax.scan(one_update, learner_state, xs)
         return learner_state, jax.tree_util.tree_map(jnp.nanmean, metrics), jnp.any(bad)
 
-    def learn(state: TrainState, hp: HParams, step_index: jax.Array):
-        """The step's updates (Alg. 2 / A3), once the buffer holds ``warmup`` transitions:
-        the warm-up test and the actor's delay are ``lax.cond``s on the unbatched step
-        index. Returns the new state, the mean metrics (NaN where nothing was computed)
-        and whether any computed loss was non-finite."""
-        key, k_updates = jax.random.split(state.key)
+    def learn(state: TrainState, hp: HParams, step_index: jax.Array, draws: Draws):
+        """The step's updates (Alg. 2 / A3) on ``draws`` once their buffer held ``warmup``
+        transitions (``lax.cond``s on the unbatched step index, as the actor's delay): the new
+        state, the mean metrics (NaN where not computed), whether a computed loss was not finite."""
 
         def updates(learner_state):
-            return run_updates(learner_state, state, hp, step_index, k_updates, learner.update)
+            return run_updates(learner_state, state, hp, step_index, draws, learner.update)
 
         def no_updates(learner_state):
             metrics = jax.eval_shape(updates, learner_state)[1]
             return learner_state, nan_like(metrics), jnp.zeros((), bool)
 
-        ready = (step_index + 1) * n_envs >= agent.warmup  # unbatched: same for all agents
+        ready = step_index * n_envs >= agent.warmup  # unbatched: same for all agents
         learner_state, metrics, bad = jax.lax.cond(ready, updates, no_updates, state.learner)
-        return state.replace(learner=learner_state, key=key), metrics, bad
+        return state.replace(learner=learner_state, key=draws.key), metrics, bad
 
     def learn_past_warmup(update):
         """``learn`` for steps known to be past warm-up, each update ``update`` (called with
         ``Learner.update``'s arguments): no conditional."""
 
-        def learn(state: TrainState, hp: HParams, step_index: jax.Array):
-            key, k_updates = jax.random.split(state.key)
+        def learn(state: TrainState, hp: HParams, step_index: jax.Array, draws: Draws):
             learner_state, metrics, bad = run_updates(
-                state.learner, state, hp, step_index, k_updates, update
+                state.learner, state, hp, step_index, draws, update
             )
-            return state.replace(learner=learner_state, key=key), metrics, bad
+            return state.replace(learner=learner_state, key=draws.key), metrics, bad
 
         return learn
 
@@ -275,6 +278,7 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
         act=act,
         step_envs=step_envs,
         record=record,
+        draw=draw,
         learn=learn,
         learn_past_warmup=learn_past_warmup,
         finish=finish,
@@ -301,40 +305,37 @@ def make_train(
         and cfg.chunk_steps % agent.delay == 0
     )
 
-    def collect(state: TrainState, hp: HParams, active: jax.Array) -> TrainState:
-        """One environment step of every env of the agent (Alg. 1 / A2, steps 8-16)."""
+    def collect(state: TrainState, hp: HParams, active: jax.Array):
+        """Every env's environment step (Alg. 1 / A2 steps 8-15): state, transition (unstored)."""
         key, k_select, k_noise = jax.random.split(state.key, 3)
         obs = state.env.obs  # [E, 20]
         actor_action, adv_action, memory = core.act(state, obs, hp)
         if agent.advisor_data:
-            q_actor = learner.q_select(state.learner, obs, actor_action)  # [E]
-            q_advisor = learner.q_select(state.learner, obs, adv_action)
-            chosen, used_advisor = jax.vmap(select_action, in_axes=(0, 0, 0, 0, 0, None, None))(
-                jax.random.split(k_select, n_envs),
-                actor_action,
-                adv_action,
-                q_actor,
-                q_advisor,
-                state.episodes,
-                hp,
-            )
+            select = jax.vmap(select_action, in_axes=(0, 0, 0, 0, 0, None, None))
+            keys = jax.random.split(k_select, n_envs)
+            q = (learner.q_select(state.learner, obs, a) for a in (actor_action, adv_action))  # [E]
+            chosen, used_advisor = select(keys, actor_action, adv_action, *q, state.episodes, hp)
         else:
             chosen, used_advisor = actor_action, jnp.zeros(n_envs, bool)
         noise_state, noise = ou_step(state.noise, k_noise, hp.ou_theta, hp.ou_sigma)
         env_state, transition = core.step_envs(state, obs, chosen, noise, adv_action)
-        replay = replay_add(state.replay, transition)
         fired = ~used_advisor
         done = env_state.done
-        return core.record(state, key, env_state, noise_state, replay, fired, done, active, memory)
+        state = core.record(
+            state, key, env_state, noise_state, state.replay, fired, done, active, memory
+        )
+        return state, transition
 
     def step(state: TrainState, hp: HParams, step_index: jax.Array, learn=core.learn):
         active = (state.episodes < n_total) & ~state.diverged
-        # Named scopes label the compiled program's ops for profiles
-        # (experiments/profile_train.py); they change nothing else.
+        # Named scopes label ops for profiles (experiments/profile_train.py), nothing else.
         with jax.named_scope("collect"):
-            state = collect(state, hp, active)
-        with jax.named_scope("learn"):
-            state, metrics, nonfinite = learn(state, freeze(hp, active), step_index)
+            collected, transition = collect(state, hp, active)
+        with jax.named_scope("learn"):  # on the buffer before this step's transition
+            draws = core.draw(state.replace(key=collected.key))
+            learned, metrics, nonfinite = learn(state, freeze(hp, active), step_index, draws)
+        replay = store_after(draws.batches, state.replay, transition)
+        state = collected.replace(learner=learned.learner, key=learned.key, replay=replay)
         return core.finish(state, active, nonfinite, metrics)
 
     def general_chunk(state: TrainState, hp: HParams, first_step: jax.Array):
@@ -343,7 +344,7 @@ def make_train(
 
     # The steady program's two updates, called with the general update's arguments.
     with_actor, critic_only = (
-        core.learn_past_warmup(lambda s, r, ks, kc, hp, index, n, f=f: f(s, r, ks, kc, hp, n))
+        core.learn_past_warmup(lambda s, b, kc, hp, index, n, f=f: f(s, b, kc, hp, n))
         for f in (learner.update_with_actor, learner.update_critic_only)
     )
 
@@ -386,7 +387,7 @@ def make_train(
 
 def steady_at(first_step, n_envs: int, warmup: int, delay: int):
     """Whether a chunk whose first step is global step ``first_step`` may run the steady
-    program: every one of its steps is past warm-up (the buffer holds ``warmup``
-    transitions of ``n_envs`` envs) and it starts a delay period, so its actor updates
-    (every ``delay``-th, counted from step 0) fall on the heads of its blocks."""
-    return ((first_step + 1) * n_envs >= warmup) & (first_step % delay == 0)
+    program: each of its steps finds ``warmup`` transitions of ``n_envs`` envs stored (its
+    own are stored after its draw) and it starts a delay period, so its actor updates (every
+    ``delay``-th, counted from step 0) fall on the heads of its blocks."""
+    return (first_step * n_envs >= warmup) & (first_step % delay == 0)

@@ -45,7 +45,7 @@ def population_update():
     replay = fill_replay(CFG.buffer_size, jax.random.key(1))
 
     def update(state, keys):
-        state, _, _ = learner.update(state, replay, keys[0], keys[1], HParams(), 0)
+        state, _, _ = learner.update(state, learner.sample(replay, keys[0]), keys[1], HParams(), 0)
         return state
 
     return jax.vmap(learner.init), jax.vmap(update)

@@ -63,7 +63,9 @@ def test_the_updates_differ_by_the_moments_rounding_alone():
         update = jax.jit(learner.update)
         for u in range(cfg.delay + 1):
             keys = jax.random.split(jax.random.key(10 + u))
-            state, _, nonfinite = update(state, replay, keys[0], keys[1], HParams(), u)
+            state, _, nonfinite = update(
+                state, learner.sample(replay, keys[0]), keys[1], HParams(), u
+            )
             assert not bool(nonfinite)
         finals[name] = state
     steps, lr = cfg.delay + 1, max(HParams().lr_critic, HParams().lr_actor)

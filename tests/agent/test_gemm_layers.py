@@ -158,7 +158,9 @@ def test_a_learner_on_gemm_layers_takes_the_modules_updates():
         state, update = learner.init(jax.random.key(0)), jax.jit(learner.update)
         for u in range(cfg.delay + 1):  # critic steps and one actor step
             keys = jax.random.split(jax.random.key(10 + u))
-            state, metrics, nonfinite = update(state, replay, keys[0], keys[1], HParams(), u)
+            state, metrics, nonfinite = update(
+                state, learner.sample(replay, keys[0]), keys[1], HParams(), u
+            )
             assert not bool(nonfinite)
         states[name] = state
     assert max_relative_difference(states["modules"].critic, states["gemm"].critic) < 1e-4

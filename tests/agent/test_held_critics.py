@@ -102,7 +102,7 @@ def test_held_critics_train_as_the_trees_do(precision):
     def run(learner, state):
         def update(state, u):
             k_sample, k_critic = jax.random.split(jax.random.fold_in(jax.random.key(10), u))
-            return learner.update(state, replay, k_sample, k_critic, hp, u)[:2]
+            return learner.update(state, learner.sample(replay, k_sample), k_critic, hp, u)[:2]
 
         state = learner.hold(state)
         state, metrics = jax.lax.scan(update, state, jnp.arange(3 * cfg.delay))
@@ -131,7 +131,9 @@ def test_the_structure_stays_exact_through_updates(moments):
     start = state.held
     for u in range(2 * cfg.delay):
         k_sample, k_critic = jax.random.split(jax.random.key(u))
-        state = jax.jit(learner.update)(state, replay, k_sample, k_critic, HParams(tau=0.3), u)[0]
+        state = jax.jit(learner.update)(
+            state, learner.sample(replay, k_sample), k_critic, HParams(tau=0.3), u
+        )[0]
     s = held_critics.structure(jax.tree.map(lambda x: x[0], learner.release(state).critic))
     layer, first, pairs = s.tied
     for name in ("online", "target"):

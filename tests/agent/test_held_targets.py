@@ -49,8 +49,8 @@ def test_held_targets_give_the_same_updates(learner_and_replay, program):
         def update(state, u, update_fn=None):  # the general update, or the steady one's
             k_sample, k_critic = jax.random.split(jax.random.fold_in(jax.random.key(10), u))
             if update_fn is None:
-                return learner.update(state, replay, k_sample, k_critic, hp, u)[:2]
-            return update_fn(state, replay, k_sample, k_critic, hp)[:2]
+                return learner.update(state, learner.sample(replay, k_sample), k_critic, hp, u)[:2]
+            return update_fn(state, learner.sample(replay, k_sample), k_critic, hp)[:2]
 
         def block(state, u):  # d updates written out, the first with the actor step
             for j in range(cfg.delay):
@@ -75,7 +75,7 @@ def test_held_targets_are_the_targets_built_after_each_soft_update(learner_and_r
     state = learner.hold(jax.jit(learner.init)(jax.random.key(0)))
     k_sample, k_critic = jax.random.split(jax.random.key(5))
     state, _, _ = jax.jit(learner.update_with_actor)(
-        state, replay, k_sample, k_critic, HParams(tau=0.5)
+        state, learner.sample(replay, k_sample), k_critic, HParams(tau=0.5)
     )
     rebuilt = learner.hold(learner.release(state))
     _assert_equal(state.target_nets, rebuilt.target_nets)

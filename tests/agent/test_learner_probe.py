@@ -44,7 +44,9 @@ def _probe_loop(agent):
         def update(state, inputs):
             t, key = inputs
             key_sample, key_critic = jax.random.split(key)
-            state, metrics, _ = learner.update(state, replay, key_sample, key_critic, hp, t)
+            state, metrics, _ = learner.update(
+                state, learner.sample(replay, key_sample), key_critic, hp, t
+            )
             return state, metrics["loss/critic"]
 
         keys = jax.random.split(key, UPDATES)

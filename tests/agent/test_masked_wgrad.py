@@ -142,7 +142,9 @@ def test_a_learner_with_the_kernel_takes_the_same_updates():
         state, update = start, jax.jit(learner.update)
         for u in range(cfg.delay + 1):  # critic steps and one actor step
             keys = jax.random.split(jax.random.key(10 + u))
-            state, _, nonfinite = update(state, replay, keys[0], keys[1], HParams(), u)
+            state, _, nonfinite = update(
+                state, learner.sample(replay, keys[0]), keys[1], HParams(), u
+            )
             assert not bool(nonfinite)
         states[name] = state
     assert_same_training(states["kernel"], states["xla"], start, "learner")

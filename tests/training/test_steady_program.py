@@ -123,10 +123,11 @@ def test_one_gpus_bf16_population_gets_the_steady_program_where_its_memory_holds
 
 @pytest.mark.parametrize(
     ("first_step", "n_envs", "expected"),
-    [(0, 1, False), (30, 1, False),  # the buffer holds < 32 transitions at the first step
-     (31, 1, False),  # past warm-up, but the first step is not a block head (d = 2)
+    [(0, 1, False), (30, 1, False),  # the buffer holds < 32 transitions before the first step
+     (31, 1, False),  # 31 before it: step 31 draws from 31 (its own is stored after the draw)
+     (33, 1, False),  # past warm-up, but the first step is not a block head (d = 2)
      (32, 1, True), (40, 1, True), (41, 1, False),
-     (14, 2, False), (16, 2, True)],  # two envs: 32 transitions after 16 steps
+     (15, 2, False), (16, 2, True)],  # two envs: 32 transitions before step 16
 )  # fmt: skip
 def test_steady_exactly_when_past_warmup_and_on_a_block_head(first_step, n_envs, expected):
     assert steady_at(first_step, n_envs, warmup=32, delay=2) == expected

@@ -10,7 +10,8 @@ core's, wrapped (``phases.py`` explains the phases and the gate)::
                  core.step_envs; an offline phase holds the env (nothing stored or counted);
                  core.record
         learn:   phases.learn: nothing (collect phase), the phase's update (offline phase),
-                 core.learn (RL)
+                 core.learn (RL) on core.draw: the buffer before this step's transition
+        store:   draws.store_after, after the learning (as the core's step: training/draws.py)
         finish:  core.finish
     chunk(state, hp, first_step, gate) = scan(step, t = first_step ..)
 
@@ -33,8 +34,8 @@ from advisor_jax.agent.config import TrainConfig
 from advisor_jax.agent.hparams import BaselineHParams
 from advisor_jax.agent.networks import MODULES, Layout
 from advisor_jax.agent.noise import ou_step
-from advisor_jax.agent.replay_buffer import replay_add
 from advisor_jax.agent.settings import freeze
+from advisor_jax.training.draws import store_after
 from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.lfd import lfd_schedule
 from advisor_jax.training.prior.mcp import mcp_schedule
@@ -97,9 +98,10 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         fields = {f.name: getattr(state, f.name) for f in dataclasses.fields(TrainState)}
         return PriorState(**fields, prior=data)
 
-    def collect(state: PriorState, hp, active, phase, gate) -> PriorState:
+    def collect(state: PriorState, hp, active, phase, gate):
         """One environment step: the phase's controller acts; an offline phase holds the env
-        (nothing stored, logged or counted)."""
+        (nothing stored, logged or counted). The state after it, its transition and which
+        of its rows to store ([E] bool)."""
         key, _, k_noise, k_phase = jax.random.split(state.key, 4)
         obs = state.env.obs  # [E, 20]
         actor_action, adv_action, memory = core.act(state, obs, hp.rl)
@@ -115,21 +117,31 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         noise_state = jax.tree.map(held, noise_state, state.noise)
         memory = jax.tree.map(held, memory, state.advisor)
         done, fired = env_state.done & acting, control.actor_fired & acting
-        replay = replay_add(state.replay, transition, jnp.broadcast_to(acting, (n_envs,)))
         active = active & acting
-        return core.record(state, key, env_state, noise_state, replay, fired, done, active, memory)
-
-    def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
-        return core.learn(state, hp.rl, step_index)
+        state = core.record(
+            state, key, env_state, noise_state, state.replay, fired, done, active, memory
+        )
+        return state, transition, jnp.broadcast_to(acting, (n_envs,))
 
     def step(state: PriorState, hp: BaselineHParams, step_index: jax.Array, gate):
         active = (state.episodes < n_total) & ~state.diverged
-        # The phase at the start of the step decides both halves.
+        # The phase at the start of the step decides both halves; both read the buffer and
+        # N as the step found them.
         phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
-        state = collect(state, hp, active, phase, gate)
-        state, metrics, nonfinite = phases.learn(
-            schedule, phase, state, freeze(hp, active), step_index, rl_learn, gate
+        collected, transition, stored = collect(state, hp, active, phase, gate)
+        draws = core.draw(state.replace(key=collected.key))
+
+        def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
+            return core.learn(state, hp.rl, step_index, draws)
+
+        learning = collected.replace(replay=state.replay, episodes=state.episodes)
+        learned, metrics, nonfinite = phases.learn(
+            schedule, phase, learning, freeze(hp, active), step_index, rl_learn, gate
         )
+        # Stored after every read of the buffer (an offline phase's too): no copy of it.
+        after = (draws.batches, learned.learner, learned.prior)
+        replay = store_after(after, state.replay, transition, stored)
+        state = learned.replace(episodes=collected.episodes, replay=replay)
         return core.finish(state, active, nonfinite, metrics)
 
     def chunk(state: PriorState, hp, first_step: jax.Array, gate=None):

@@ -1,0 +1,80 @@
+"""A step draws its update's minibatch before it stores its transition (training/train.py).
+
+Both halves of a step read the state it starts from: the update is the learner's update on
+the batch drawn from the buffer as the step found it, the step's transition is stored after
+the draw, and the first update comes once the buffer held ``warmup`` transitions before the
+step. These tests compute one step's update by hand from the pieces and compare.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from advisor_jax.agent.config import HParams
+from advisor_jax.training.train import make_core, make_train
+from tests.training.conftest import TINY
+
+ROUNDING = 1e-5
+"""Largest ||chunk - by hand|| / ||by hand|| after one update (fp32): the same operations,
+compiled in two programs that may fuse them differently."""
+
+HP = HParams(lr_actor=1e-3)
+
+
+def relative(a, b) -> float:
+    num = den = 0.0
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        num += float(np.sum((x - y) ** 2))
+        den += float(np.sum(y**2))
+    return (num / den) ** 0.5
+
+
+@pytest.fixture(scope="module")
+def after_warmup_chunk():
+    """One agent's state after TINY's first 40-step chunk (its buffer holds 40 of its
+    transitions, past the warm-up of one batch, 32) and that chunk's metrics."""
+    trainer = make_train(TINY)
+    state, metrics = jax.jit(trainer.chunk)(trainer.init(jax.random.key(3)), HP, jnp.int32(0))
+    return jax.device_get(state), jax.device_get(metrics)
+
+
+def test_the_first_update_comes_once_the_buffer_held_warmup_transitions_before_the_step(
+    after_warmup_chunk,
+):
+    _, metrics = after_warmup_chunk
+    warmup = TINY.agent.warmup  # 32: steps 0..31 find fewer than 32 transitions stored
+    loss = np.asarray(metrics["loss/critic"])
+    assert np.all(np.isnan(loss[:warmup]))
+    assert np.all(np.isfinite(loss[warmup:]))
+
+
+def test_a_steps_update_is_the_update_on_the_buffer_before_its_transition(after_warmup_chunk):
+    state, _ = after_warmup_chunk
+    one_step = dataclasses.replace(TINY, chunk_steps=1)
+    first_step = TINY.chunk_steps  # 40, a block head for d = 2: the actor step too
+    after, _ = jax.jit(make_train(one_step).chunk)(state, HP, jnp.int32(first_step))
+
+    # By hand: the step's keys (collect splits the state's key in three and keeps the
+    # first; the draw splits that), then the learner's update on a batch drawn from the
+    # buffer the step started from.
+    learner = make_core(one_step).learner
+    collect_key = jax.random.split(state.key, 3)[0]
+    _, k_updates = jax.random.split(collect_key)
+    _, k_sample, k_critic = jax.random.split(k_updates, 3)
+    batch = learner.sample(state.replay, k_sample)
+    by_hand, _, _ = jax.jit(learner.update)(
+        state.learner, batch, k_critic, HP, jnp.int32(first_step), state.episodes
+    )
+
+    assert relative(after.learner, by_hand) < ROUNDING
+    # ... and the transition stored after the draw, in the next free slot.
+    slot = int(state.replay.position)
+    assert int(after.replay.size) == int(state.replay.size) + 1
+    np.testing.assert_array_equal(after.replay.data.obs[slot], state.env.obs[0])
+    np.testing.assert_array_equal(after.replay.data.obs[:slot], state.replay.data.obs[:slot])
