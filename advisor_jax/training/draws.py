@@ -1,17 +1,23 @@
-"""A step's minibatches are drawn before the step stores its transition.
+"""A step's minibatches are drawn before the step's transition is stored.
 
 Alg. 1 stores the step's transition (step 16) and then samples the update's minibatch. Here
 both halves of a step read the state the step starts from: the collection acts with the
 parameters before the step's update (as Alg. 1 does), the update draws from the buffer as
-the step found it (``draw_minibatches``), with N (the AfP gate) as the step found it, and
-the step's transition is stored after the draw (``store_after``).
+the step found it (``draw_batches``), with N (the AfP gate) as the step found it. The
+step's transition is *pending*: stored at the start of the next step, before that step's
+draw (``store_pending``), or at the end of the chunk.
 
 The paper's own runs train asynchronously (§4.1), where a minibatch never waits for the
 newest transition; we keep the update synchronous and one per step (R25). The two halves
-are then independent, so a GPU runs the collection's kernels beside the update's (1 agent
-1.11×, 4 agents 1.07×, 16 and 64 agents 0.99×; training unchanged over 16 seeds:
-``results/bench_draw_first/``). The cost: a transition joins the draws one step later, one
-of the ``warmup`` or more transitions a batch is drawn from.
+are then independent, so a GPU runs the collection's kernels beside the update's
+(``results/bench_draw_first/``; training unchanged over 16 seeds). The cost: a transition
+joins the draws one step later, one of the ``warmup`` or more a batch is drawn from.
+
+Why pending and not stored at the end of its own step: a store at the end writes the buffer
+the step's draw read. XLA's fusion may duplicate the draw's gather into the update's kernels
+and schedule it after the store, and the store then writes a copy of the whole buffer (twice
+per step on a CPU: 0.82× there). Stored at the start of the next step, the write comes
+before every read of that step in the single-step loop.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from advisor_jax.agent.replay_buffer import ReplayState, Transition, replay_add
+from advisor_jax.agent.replay_buffer import ReplayState, Transition, replay_add, replay_init
 
 
 class Draws(NamedTuple):
@@ -32,7 +38,7 @@ class Draws(NamedTuple):
     key: jax.Array  # the state's key after the draw
 
 
-def draw_minibatches(learner, updates_per_step: int, replay: ReplayState, key: jax.Array) -> Draws:
+def draw_batches(learner, updates_per_step: int, replay: ReplayState, key: jax.Array) -> Draws:
     """The step's ``updates_per_step`` minibatches (Alg. 2 step 6) from ``replay`` with
     ``learner.sample``, and TD3's smoothing keys, split from the state's ``key`` as each
     update always split them."""
@@ -46,9 +52,18 @@ def draw_minibatches(learner, updates_per_step: int, replay: ReplayState, key: j
     return Draws(jax.tree.map(stack, *batches), stack(*critic_keys), key)
 
 
-def store_after(after: Any, replay: ReplayState, transition: Transition, valid=None) -> ReplayState:
-    """``replay`` with ``transition`` added (``replay_add``'s ``valid``), written once
-    ``after`` (what was read from the buffer: the draws' batches) is computed, so that the
-    write cannot precede a read of the buffer it overwrites."""
-    _, replay = jax.lax.optimization_barrier((after, replay))
-    return replay_add(replay, transition, valid)
+class Pending(NamedTuple):
+    """A step's transition, to be stored at the start of the next step."""
+
+    transition: Transition  # [E, ...]
+    valid: jax.Array  # [E] bool: the rows to store (a baseline's offline phase stores none)
+
+
+def nothing_pending(n_envs: int) -> Pending:
+    """What a chunk's first step finds pending: nothing."""
+    return Pending(replay_init(n_envs).data, jnp.zeros(n_envs, bool))
+
+
+def store_pending(replay: ReplayState, pending: Pending) -> ReplayState:
+    """``replay`` with the pending transition's valid rows added."""
+    return replay_add(replay, pending.transition, pending.valid)

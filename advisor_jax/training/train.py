@@ -4,6 +4,8 @@ chunk that scans them.
 One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
 
     step(state, hp, t):                                      # one environment step
+        store:    the previous step's transition, replay.add(s, a, a_adv, r, s', terminal)
+                                                                          # Alg. 1 step 16
         active = N < N_total and not diverged
         collect:  a_act = π(s);  a_adv = advisor(s)          # Alg. 1 steps 9-10 (any
                                                              # advisor, its quality knobs)
@@ -15,9 +17,8 @@ One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
                       B = replay.sample(n)    (the buffer before this step's transition)
                       Learner.update: critic_step(B)                           # Alg. 2 6-8
                       every d-th update: actor_step(B) + soft targets          # Alg. 2 9-15
-        store:    replay.add(s, a, a_adv, r, s', terminal)    # Alg. 1 step 16, after the draw
         finish:   a non-finite loss freezes the agent; actor snapshots
-    chunk(state, hp, first_step) = scan(step, t = first_step .. first_step + chunk_steps - 1)
+    chunk(state, hp, first_step) = scan(step, t = first_step .. + chunk_steps - 1); store
 
 Collect and learn both read the state the step starts from (``training/draws.py``).
 ``make_core`` builds these pieces; ``make_train`` scans them into the paper's agents'
@@ -68,7 +69,7 @@ from advisor_jax.agent.selector import select_action
 from advisor_jax.agent.settings import freeze
 from advisor_jax.contract import spec
 from advisor_jax.training.advisor_source import resolve_advisor
-from advisor_jax.training.draws import Draws, draw_minibatches, store_after
+from advisor_jax.training.draws import Draws, Pending, draw_batches, nothing_pending, store_pending
 from advisor_jax.training.state import (
     EpisodeLog,
     TrainState,
@@ -217,7 +218,7 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
         )
 
     def draw(state: TrainState) -> Draws:
-        return draw_minibatches(learner, cfg.updates_per_step, state.replay, state.key)
+        return draw_batches(learner, cfg.updates_per_step, state.replay, state.key)
 
     def run_updates(learner_state, state: TrainState, hp: HParams, step_index, draws, update):
         """`updates_per_step` calls of ``update`` (a ``Learner`` update) from
@@ -299,11 +300,8 @@ def make_train(
     core = make_core(cfg, layout)
     agent, learner = cfg.agent, core.learner
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
-    steady = (
-        steady
-        and (cfg.updates_per_step == 1 or agent.delay == 1)
-        and cfg.chunk_steps % agent.delay == 0
-    )
+    delay_in_whole_steps = cfg.updates_per_step == 1 or agent.delay == 1
+    steady = steady and delay_in_whole_steps and cfg.chunk_steps % agent.delay == 0
 
     def collect(state: TrainState, hp: HParams, active: jax.Array):
         """Every env's environment step (Alg. 1 / A2 steps 8-15): state, transition (unstored)."""
@@ -326,7 +324,10 @@ def make_train(
         )
         return state, transition
 
-    def step(state: TrainState, hp: HParams, step_index: jax.Array, learn=core.learn):
+    def step(carry: tuple[TrainState, Pending], hp, step_index: jax.Array, learn=core.learn):
+        """(state, the previous step's transition) -> (state, this step's), metrics."""
+        state, pending = carry
+        state = state.replace(replay=store_pending(state.replay, pending))
         active = (state.episodes < n_total) & ~state.diverged
         # Named scopes label ops for profiles (experiments/profile_train.py), nothing else.
         with jax.named_scope("collect"):
@@ -334,13 +335,13 @@ def make_train(
         with jax.named_scope("learn"):  # on the buffer before this step's transition
             draws = core.draw(state.replace(key=collected.key))
             learned, metrics, nonfinite = learn(state, freeze(hp, active), step_index, draws)
-        replay = store_after(draws.batches, state.replay, transition)
-        state = collected.replace(learner=learned.learner, key=learned.key, replay=replay)
-        return core.finish(state, active, nonfinite, metrics)
+        state = collected.replace(learner=learned.learner, key=learned.key)
+        state, metrics = core.finish(state, active, nonfinite, metrics)
+        return (state, Pending(transition, jnp.ones(n_envs, bool))), metrics
 
-    def general_chunk(state: TrainState, hp: HParams, first_step: jax.Array):
+    def general_chunk(carry, hp: HParams, first_step: jax.Array):
         steps = jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
-        return jax.lax.scan(lambda s, i: step(s, hp, first_step + i), state, steps)
+        return jax.lax.scan(lambda c, i: step(c, hp, first_step + i), carry, steps)
 
     # The steady program's two updates, called with the general update's arguments.
     with_actor, critic_only = (
@@ -348,36 +349,39 @@ def make_train(
         for f in (learner.update_with_actor, learner.update_critic_only)
     )
 
-    def steady_chunk(state: TrainState, hp: HParams, first_step: jax.Array):
+    def steady_chunk(carry, hp: HParams, first_step: jax.Array):
         """The same steps without a conditional: blocks of d steps written out one after the
         other (not a nested scan, which ran slower), the first with the actor update, all
         past warm-up (valid when ``steady_at(first_step)``)."""
 
-        def block(state: TrainState, first: jax.Array):
+        def block(carry, first: jax.Array):
             metrics = []
             for j in range(agent.delay):
-                state, m = step(state, hp, first + j, with_actor if j == 0 else critic_only)
+                carry, m = step(carry, hp, first + j, with_actor if j == 0 else critic_only)
                 metrics.append(m)
-            return state, jax.tree.map(lambda *ms: jnp.stack(ms), *metrics)
+            return carry, jax.tree.map(lambda *ms: jnp.stack(ms), *metrics)
 
         firsts = first_step + jnp.arange(0, cfg.chunk_steps, agent.delay, dtype=jnp.int32)
-        state, metrics = jax.lax.scan(block, state, firsts)
-        return state, jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), metrics)
+        carry, metrics = jax.lax.scan(block, carry, firsts)
+        return carry, jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), metrics)
 
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
         """`chunk_steps` environment steps; `first_step` is the global index of the first.
         The state it takes and returns holds nothing (``Learner.release``): flax trees."""
         if hold:
             state = state.replace(learner=learner.hold(state.learner))
+        carry = (state, nothing_pending(n_envs))
         if not steady:
-            state, metrics = general_chunk(state, hp, first_step)
+            carry, metrics = general_chunk(carry, hp, first_step)
         else:  # one conditional per chunk (its predicate is unbatched), none in the steady loop
-            state, metrics = jax.lax.cond(
+            carry, metrics = jax.lax.cond(
                 steady_at(first_step, n_envs, agent.warmup, agent.delay),
-                lambda s: steady_chunk(s, hp, first_step),
-                lambda s: general_chunk(s, hp, first_step),
-                state,
+                lambda c: steady_chunk(c, hp, first_step),
+                lambda c: general_chunk(c, hp, first_step),
+                carry,
             )
+        state, pending = carry
+        state = state.replace(replay=store_pending(state.replay, pending))  # the last step's
         return state.replace(learner=learner.release(state.learner)), metrics
 
     return Trainer(

@@ -78,3 +78,15 @@ def test_a_steps_update_is_the_update_on_the_buffer_before_its_transition(after_
     assert int(after.replay.size) == int(state.replay.size) + 1
     np.testing.assert_array_equal(after.replay.data.obs[slot], state.env.obs[0])
     np.testing.assert_array_equal(after.replay.data.obs[:slot], state.replay.data.obs[:slot])
+
+
+def test_a_transition_pending_at_a_chunks_end_is_stored_as_within_a_chunk(after_warmup_chunk):
+    """Steps 40..79 as one chunk and as two: the transition a chunk ends with is stored by
+    the chunk, one inside a chunk by the next step; the runs must not tell them apart."""
+    state, _ = after_warmup_chunk
+    whole = jax.jit(make_train(TINY).chunk)(state, HP, jnp.int32(40))[0]
+    half = jax.jit(make_train(dataclasses.replace(TINY, chunk_steps=20)).chunk)
+    halves = half(half(state, HP, jnp.int32(40))[0], HP, jnp.int32(60))[0]
+    for a, b in zip(jax.tree.leaves(whole.replay), jax.tree.leaves(halves.replay), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert relative(halves.learner, whole.learner) < ROUNDING

@@ -11,7 +11,7 @@ core's, wrapped (``phases.py`` explains the phases and the gate)::
                  core.record
         learn:   phases.learn: nothing (collect phase), the phase's update (offline phase),
                  core.learn (RL) on core.draw: the buffer before this step's transition
-        store:   draws.store_after, after the learning (as the core's step: training/draws.py)
+        store:   the transition, pending until the next step starts (training/draws.py)
         finish:  core.finish
     chunk(state, hp, first_step, gate) = scan(step, t = first_step ..)
 
@@ -35,7 +35,7 @@ from advisor_jax.agent.hparams import BaselineHParams
 from advisor_jax.agent.networks import MODULES, Layout
 from advisor_jax.agent.noise import ou_step
 from advisor_jax.agent.settings import freeze
-from advisor_jax.training.draws import store_after
+from advisor_jax.training.draws import Pending, nothing_pending, store_pending
 from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.lfd import lfd_schedule
 from advisor_jax.training.prior.mcp import mcp_schedule
@@ -123,7 +123,10 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         )
         return state, transition, jnp.broadcast_to(acting, (n_envs,))
 
-    def step(state: PriorState, hp: BaselineHParams, step_index: jax.Array, gate):
+    def step(carry: tuple[PriorState, Pending], hp: BaselineHParams, step_index, gate):
+        """(state, the previous step's transition) -> (state, this step's), metrics."""
+        state, pending = carry
+        state = state.replace(replay=store_pending(state.replay, pending))
         active = (state.episodes < n_total) & ~state.diverged
         # The phase at the start of the step decides both halves; both read the buffer and
         # N as the step found them.
@@ -134,21 +137,22 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
             return core.learn(state, hp.rl, step_index, draws)
 
-        learning = collected.replace(replay=state.replay, episodes=state.episodes)
+        learning = collected.replace(episodes=state.episodes)
         learned, metrics, nonfinite = phases.learn(
             schedule, phase, learning, freeze(hp, active), step_index, rl_learn, gate
         )
-        # Stored after every read of the buffer (an offline phase's too): no copy of it.
-        after = (draws.batches, learned.learner, learned.prior)
-        replay = store_after(after, state.replay, transition, stored)
-        state = learned.replace(episodes=collected.episodes, replay=replay)
-        return core.finish(state, active, nonfinite, metrics)
+        state = learned.replace(episodes=collected.episodes)
+        state, metrics = core.finish(state, active, nonfinite, metrics)
+        return (state, Pending(transition, stored)), metrics
 
     def chunk(state: PriorState, hp, first_step: jax.Array, gate=None):
         if schedule.gated and gate is None:
             gate = phases.population_gate(schedule, state, hp, n_total, cfg.chunk_steps)
         steps = jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
-        return jax.lax.scan(lambda s, i: step(s, hp, first_step + i, gate), state, steps)
+        carry = (state, nothing_pending(n_envs))
+        carry, metrics = jax.lax.scan(lambda c, i: step(c, hp, first_step + i, gate), carry, steps)
+        state, pending = carry
+        return state.replace(replay=store_pending(state.replay, pending)), metrics
 
     report = PhaseReport(
         describe=phases.describe(schedule),
