@@ -101,8 +101,8 @@ class Core(NamedTuple):
     """(state, key, env_state, noise_state, replay, fired [E], done [E], active, advisor
     memory) -> state: the step's env, noise, buffer, advisor memory and key kept, and its
     finished episodes logged."""
-    draw: Callable[[TrainState], Draws]
-    """(state) -> the step's minibatches from ``state.replay`` (``training/draws.py``)."""
+    draw: Callable[[Any, jax.Array], Draws]
+    """(replay, key) -> the step's minibatches from ``replay`` (``training/draws.py``)."""
     learn: Callable[..., tuple[TrainState, Metrics, jax.Array]]
     """(state, hp, step index, draws) -> (state, metrics, nonfinite): the updates on ``draws``."""
     learn_past_warmup: Callable[[Callable], Callable]
@@ -217,8 +217,7 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
             key=key,
         )
 
-    def draw(state: TrainState) -> Draws:
-        return draw_batches(learner, cfg.updates_per_step, state.replay, state.key)
+    draw = functools.partial(draw_batches, learner, cfg.updates_per_step)
 
     def run_updates(learner_state, state: TrainState, hp: HParams, step_index, draws, update):
         """`updates_per_step` calls of ``update`` (a ``Learner`` update) from
@@ -333,7 +332,7 @@ def make_train(
         with jax.named_scope("collect"):
             collected, transition = collect(state, hp, active)
         with jax.named_scope("learn"):  # on the buffer before this step's transition
-            draws = core.draw(state.replace(key=collected.key))
+            draws = core.draw(state.replay, collected.key)
             learned, metrics, nonfinite = learn(state, freeze(hp, active), step_index, draws)
         state = collected.replace(learner=learned.learner, key=learned.key)
         state, metrics = core.finish(state, active, nonfinite, metrics)

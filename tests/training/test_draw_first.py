@@ -17,22 +17,10 @@ import pytest
 
 from advisor_jax.agent.config import HParams
 from advisor_jax.training.train import make_core, make_train
+from tests.compare import assert_same_training
 from tests.training.conftest import TINY
 
-ROUNDING = 1e-5
-"""Largest ||chunk - by hand|| / ||by hand|| after one update (fp32): the same operations,
-compiled in two programs that may fuse them differently."""
-
 HP = HParams(lr_actor=1e-3)
-
-
-def relative(a, b) -> float:
-    num = den = 0.0
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
-        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-        num += float(np.sum((x - y) ** 2))
-        den += float(np.sum(y**2))
-    return (num / den) ** 0.5
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +60,7 @@ def test_a_steps_update_is_the_update_on_the_buffer_before_its_transition(after_
         state.learner, batch, k_critic, HP, jnp.int32(first_step), state.episodes
     )
 
-    assert relative(after.learner, by_hand) < ROUNDING
+    assert_same_training(after.learner, by_hand, state.learner, "one step against by hand")
     # ... and the transition stored after the draw, in the next free slot.
     slot = int(state.replay.position)
     assert int(after.replay.size) == int(state.replay.size) + 1
@@ -89,4 +77,4 @@ def test_a_transition_pending_at_a_chunks_end_is_stored_as_within_a_chunk(after_
     halves = half(half(state, HP, jnp.int32(40))[0], HP, jnp.int32(60))[0]
     for a, b in zip(jax.tree.leaves(whole.replay), jax.tree.leaves(halves.replay), strict=True):
         np.testing.assert_array_equal(a, b)
-    assert relative(halves.learner, whole.learner) < ROUNDING
+    assert_same_training(halves.learner, whole.learner, state.learner, "two chunks against one")

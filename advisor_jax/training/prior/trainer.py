@@ -132,7 +132,7 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         # N as the step found them.
         phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
         collected, transition, stored = collect(state, hp, active, phase, gate)
-        draws = core.draw(state.replace(key=collected.key))
+        draws = core.draw(state.replay, collected.key)
 
         def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
             return core.learn(state, hp.rl, step_index, draws)
