@@ -4,8 +4,7 @@ Alg. 1 stores the step's transition (step 16) and then samples the update's mini
 both halves of a step read the state the step starts from: the collection acts with the
 parameters before the step's update (as Alg. 1 does), the update draws from the buffer as
 the step found it (``draw_batches``), with N (the AfP gate) as the step found it. The
-step's transition is *pending*: stored at the start of the next step, before that step's
-draw (``store_pending``), or at the end of the chunk.
+step's transition is stored after the draw, where depends on the loop (below).
 
 The paper's own runs train asynchronously (§4.1), where a minibatch never waits for the
 newest transition; we keep the update synchronous and one per step (R25). The two halves
@@ -13,11 +12,21 @@ are then independent, so a GPU runs the collection's kernels beside the update's
 (``results/bench_draw_first/``; training unchanged over 16 seeds). The cost: a transition
 joins the draws one step later, one of the ``warmup`` or more a batch is drawn from.
 
-Why pending and not stored at the end of its own step: a store at the end writes the buffer
-the step's draw read. XLA's fusion may duplicate the draw's gather into the update's kernels
-and schedule it after the store, and the store then writes a copy of the whole buffer (twice
-per step on a CPU: 0.82× there). Stored at the start of the next step, the write comes
-before every read of that step in the single-step loop.
+Where the store goes. A store free to go anywhere after the draw writes the buffer the draw
+reads: XLA's fusion may duplicate the draw's gather into the update's kernels and schedule a
+duplicate after the store, which then writes a copy of the whole buffer (twice per step on a
+CPU: 0.82×). So:
+
+* the single-step loop (the general program, every CPU's) keeps the transition *pending*
+  and stores it at the start of the next step (``store_pending``), or at the end of the
+  chunk (``scan_pending``): the write comes before every read of the loop's body;
+* the blocks of d steps of the steady and latency-bound programs (which only GPUs pick)
+  store it once the step's update is computed (``store_after``, an optimization barrier):
+  pending, a block's next step would write the buffer its previous step's draw read, and on
+  a GPU that held a copy of it (0.97× at 16 and 64 agents). A barrier copies the buffer on a
+  CPU, not on a GPU.
+
+The two put the same transition in the same slot before the same draw: the same training.
 """
 
 from __future__ import annotations
@@ -67,3 +76,23 @@ def nothing_pending(n_envs: int) -> Pending:
 def store_pending(replay: ReplayState, pending: Pending) -> ReplayState:
     """``replay`` with the pending transition's valid rows added."""
     return replay_add(replay, pending.transition, pending.valid)
+
+
+def scan_pending(step, state, steps: jax.Array, n_envs: int):
+    """``lax.scan`` of ``step(state, step index, pending) -> (state, metrics, pending)`` over
+    ``steps``: each step stores the transition the one before left pending (the first finds
+    none), and the last one's is stored at the end. (state, metrics)."""
+
+    def pending_step(carry, index):
+        state, metrics, pending = step(carry[0], index, carry[1])
+        return (state, pending), metrics
+
+    (state, last), metrics = jax.lax.scan(pending_step, (state, nothing_pending(n_envs)), steps)
+    return state.replace(replay=store_pending(state.replay, last)), metrics
+
+
+def store_after(replay: ReplayState, transition: Transition, fed):
+    """``(fed, replay)`` with ``transition`` added to ``replay`` once ``fed`` is computed:
+    everything the step's draw fed into (the update's learner state, metrics and flags)."""
+    fed, replay = jax.lax.optimization_barrier((fed, replay))
+    return fed, replay_add(replay, transition)

@@ -57,6 +57,17 @@ class TrainState:
     key: jax.Array
 
 
+def empty_log(n_total: int) -> EpisodeLog:
+    """The log of an agent that has played none of its ``n_total`` episodes."""
+    return EpisodeLog(
+        outcome=jnp.zeros(n_total, jnp.int32),
+        length=jnp.zeros(n_total, jnp.int32),
+        episode_return=jnp.zeros(n_total, jnp.float32),
+        collision_speed=jnp.full(n_total, jnp.nan, jnp.float32),
+        actor_steps=jnp.zeros(n_total, jnp.int32),
+    )
+
+
 def no_snapshots(actor, snapshot_at: jax.Array) -> ActorSnapshots:
     k = snapshot_at.shape[0]
     return ActorSnapshots(

@@ -4,8 +4,6 @@ chunk that scans them.
 One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
 
     step(state, hp, t):                                      # one environment step
-        store:    the previous step's transition, replay.add(s, a, a_adv, r, s', terminal)
-                                                                          # Alg. 1 step 16
         active = N < N_total and not diverged
         collect:  a_act = π(s);  a_adv = advisor(s)          # Alg. 1 steps 9-10 (any
                                                              # advisor, its quality knobs)
@@ -17,8 +15,9 @@ One agent's step, all inside ``lax.scan`` (the caller vmaps over agents)::
                       B = replay.sample(n)    (the buffer before this step's transition)
                       Learner.update: critic_step(B)                           # Alg. 2 6-8
                       every d-th update: actor_step(B) + soft targets          # Alg. 2 9-15
+        store:    replay.add(s, a, a_adv, r, s', terminal)   (after learn)   # Alg. 1 step 16
         finish:   a non-finite loss freezes the agent; actor snapshots
-    chunk(state, hp, first_step) = scan(step, t = first_step .. + chunk_steps - 1); store
+    chunk(state, hp, first_step) = scan(step, t = first_step .. + chunk_steps - 1)
 
 Collect and learn both read the state the step starts from (``training/draws.py``).
 ``make_core`` builds these pieces; ``make_train`` scans them into the paper's agents'
@@ -68,11 +67,11 @@ from advisor_jax.agent.replay_buffer import Transition, replay_init
 from advisor_jax.agent.selector import select_action
 from advisor_jax.agent.settings import freeze
 from advisor_jax.contract import spec
+from advisor_jax.training import draws
 from advisor_jax.training.advisor_source import resolve_advisor
-from advisor_jax.training.draws import Draws, Pending, draw_batches, nothing_pending, store_pending
 from advisor_jax.training.state import (
-    EpisodeLog,
     TrainState,
+    empty_log,
     no_snapshots,
     take_snapshots,
     write_episodes,
@@ -101,7 +100,7 @@ class Core(NamedTuple):
     """(state, key, env_state, noise_state, replay, fired [E], done [E], active, advisor
     memory) -> state: the step's env, noise, buffer, advisor memory and key kept, and its
     finished episodes logged."""
-    draw: Callable[[Any, jax.Array], Draws]
+    draw: Callable[[Any, jax.Array], draws.Draws]
     """(replay, key) -> the step's minibatches from ``replay`` (``training/draws.py``)."""
     learn: Callable[..., tuple[TrainState, Metrics, jax.Array]]
     """(state, hp, step index, draws) -> (state, metrics, nonfinite): the updates on ``draws``."""
@@ -172,13 +171,7 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
             episodes=jnp.zeros((), jnp.int32),
             env_steps=jnp.zeros((), jnp.int32),
             diverged=jnp.zeros((), bool),
-            log=EpisodeLog(
-                outcome=jnp.zeros(n_total, jnp.int32),
-                length=jnp.zeros(n_total, jnp.int32),
-                episode_return=jnp.zeros(n_total, jnp.float32),
-                collision_speed=jnp.full(n_total, jnp.nan, jnp.float32),
-                actor_steps=jnp.zeros(n_total, jnp.int32),
-            ),
+            log=empty_log(n_total),
             snapshots=no_snapshots(learner_state.actor, snapshot_at),
             key=key,
         )
@@ -217,11 +210,11 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
             key=key,
         )
 
-    draw = functools.partial(draw_batches, learner, cfg.updates_per_step)
+    draw = functools.partial(draws.draw_batches, learner, cfg.updates_per_step)
 
-    def run_updates(learner_state, state: TrainState, hp: HParams, step_index, draws, update):
+    def run_updates(learner_state, state: TrainState, hp: HParams, step_index, drawn, update):
         """`updates_per_step` calls of ``update`` (a ``Learner`` update) from
-        ``learner_state`` on ``draws``: (learner state, mean metrics, whether any computed
+        ``learner_state`` on ``drawn``: (learner state, mean metrics, whether any computed
         loss was non-finite)."""
 
         def one_update(learner_state, xs):
@@ -232,17 +225,17 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
             )
             return learner_state, (metrics, bad)
 
-        xs = (jnp.arange(cfg.updates_per_step), draws.batches, draws.critic_keys)
+        xs = (jnp.arange(cfg.updates_per_step), drawn.batches, drawn.critic_keys)
         learner_state, (metrics, bad) = jax.lax.scan(one_update, learner_state, xs)
         return learner_state, jax.tree_util.tree_map(jnp.nanmean, metrics), jnp.any(bad)
 
-    def learn(state: TrainState, hp: HParams, step_index: jax.Array, draws: Draws):
-        """The step's updates (Alg. 2 / A3) on ``draws`` once their buffer held ``warmup``
+    def learn(state: TrainState, hp: HParams, step_index: jax.Array, drawn: draws.Draws):
+        """The step's updates (Alg. 2 / A3) on ``drawn`` once their buffer held ``warmup``
         transitions (``lax.cond``s on the unbatched step index, as the actor's delay): the new
         state, the mean metrics (NaN where not computed), whether a computed loss was not finite."""
 
         def updates(learner_state):
-            return run_updates(learner_state, state, hp, step_index, draws, learner.update)
+            return run_updates(learner_state, state, hp, step_index, drawn, learner.update)
 
         def no_updates(learner_state):
             metrics = jax.eval_shape(updates, learner_state)[1]
@@ -250,17 +243,17 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
 
         ready = step_index * n_envs >= agent.warmup  # unbatched: same for all agents
         learner_state, metrics, bad = jax.lax.cond(ready, updates, no_updates, state.learner)
-        return state.replace(learner=learner_state, key=draws.key), metrics, bad
+        return state.replace(learner=learner_state, key=drawn.key), metrics, bad
 
     def learn_past_warmup(update):
         """``learn`` for steps known to be past warm-up, each update ``update`` (called with
         ``Learner.update``'s arguments): no conditional."""
 
-        def learn(state: TrainState, hp: HParams, step_index: jax.Array, draws: Draws):
+        def learn(state: TrainState, hp: HParams, step_index: jax.Array, drawn: draws.Draws):
             learner_state, metrics, bad = run_updates(
-                state.learner, state, hp, step_index, draws, update
+                state.learner, state, hp, step_index, drawn, update
             )
-            return state.replace(learner=learner_state, key=draws.key), metrics, bad
+            return state.replace(learner=learner_state, key=drawn.key), metrics, bad
 
         return learn
 
@@ -295,7 +288,10 @@ def make_train(
     docstring; ``program.latency_bound`` decides where it pays). It is only built where it
     exists: one update per step or no delay, and chunks a whole number of delay periods.
     ``hold``: a chunk holds the learner's built targets and, where its layout says, critics
-    (``Learner.hold``; ``program.holds_networks`` decides where it pays)."""
+    (``Learner.hold``; ``program.holds_networks`` decides where it pays).
+
+    Long: the factory of the chunk's closures (collect, step, the two loops), which share
+    the core and its settings; each is short."""
     core = make_core(cfg, layout)
     agent, learner = cfg.agent, core.learner
     n_envs, n_total = cfg.envs_per_agent, cfg.episodes
@@ -323,24 +319,32 @@ def make_train(
         )
         return state, transition
 
-    def step(carry: tuple[TrainState, Pending], hp, step_index: jax.Array, learn=core.learn):
-        """(state, the previous step's transition) -> (state, this step's), metrics."""
-        state, pending = carry
-        state = state.replace(replay=store_pending(state.replay, pending))
+    def step(state: TrainState, hp, step_index, learn=core.learn, pending=None):
+        """One environment step and its updates (the outline above): state, metrics and,
+        given the previous step's ``pending`` transition (stored first), this step's; without,
+        it is stored once the update is computed (``training/draws.py`` says why)."""
+        if pending is not None:
+            state = state.replace(replay=draws.store_pending(state.replay, pending))
         active = (state.episodes < n_total) & ~state.diverged
         # Named scopes label ops for profiles (experiments/profile_train.py), nothing else.
         with jax.named_scope("collect"):
             collected, transition = collect(state, hp, active)
         with jax.named_scope("learn"):  # on the buffer before this step's transition
-            draws = core.draw(state.replay, collected.key)
-            learned, metrics, nonfinite = learn(state, freeze(hp, active), step_index, draws)
-        state = collected.replace(learner=learned.learner, key=learned.key)
+            drawn = core.draw(state.replay, collected.key)
+            learned, metrics, nonfinite = learn(state, freeze(hp, active), step_index, drawn)
+        fed, replay = (learned.learner, metrics, nonfinite), state.replay
+        if pending is None:
+            fed, replay = draws.store_after(replay, transition, fed)
+        else:
+            pending = draws.Pending(transition, jnp.ones(n_envs, bool))
+        learner_state, metrics, nonfinite = fed
+        state = collected.replace(learner=learner_state, key=learned.key, replay=replay)
         state, metrics = core.finish(state, active, nonfinite, metrics)
-        return (state, Pending(transition, jnp.ones(n_envs, bool))), metrics
+        return state, metrics, pending
 
-    def general_chunk(carry, hp: HParams, first_step: jax.Array):
-        steps = jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
-        return jax.lax.scan(lambda c, i: step(c, hp, first_step + i), carry, steps)
+    def general_chunk(state: TrainState, hp: HParams, first_step: jax.Array):
+        steps = first_step + jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
+        return draws.scan_pending(lambda s, i, p: step(s, hp, i, pending=p), state, steps, n_envs)
 
     # The steady program's two updates, called with the general update's arguments.
     with_actor, critic_only = (
@@ -348,39 +352,36 @@ def make_train(
         for f in (learner.update_with_actor, learner.update_critic_only)
     )
 
-    def steady_chunk(carry, hp: HParams, first_step: jax.Array):
+    def steady_chunk(state: TrainState, hp: HParams, first_step: jax.Array):
         """The same steps without a conditional: blocks of d steps written out one after the
         other (not a nested scan, which ran slower), the first with the actor update, all
         past warm-up (valid when ``steady_at(first_step)``)."""
 
-        def block(carry, first: jax.Array):
+        def block(state: TrainState, first: jax.Array):
             metrics = []
             for j in range(agent.delay):
-                carry, m = step(carry, hp, first + j, with_actor if j == 0 else critic_only)
+                state, m, _ = step(state, hp, first + j, with_actor if j == 0 else critic_only)
                 metrics.append(m)
-            return carry, jax.tree.map(lambda *ms: jnp.stack(ms), *metrics)
+            return state, jax.tree.map(lambda *ms: jnp.stack(ms), *metrics)
 
         firsts = first_step + jnp.arange(0, cfg.chunk_steps, agent.delay, dtype=jnp.int32)
-        carry, metrics = jax.lax.scan(block, carry, firsts)
-        return carry, jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), metrics)
+        state, metrics = jax.lax.scan(block, state, firsts)
+        return state, jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), metrics)
 
     def chunk(state: TrainState, hp: HParams, first_step: jax.Array):
         """`chunk_steps` environment steps; `first_step` is the global index of the first.
         The state it takes and returns holds nothing (``Learner.release``): flax trees."""
         if hold:
             state = state.replace(learner=learner.hold(state.learner))
-        carry = (state, nothing_pending(n_envs))
         if not steady:
-            carry, metrics = general_chunk(carry, hp, first_step)
+            state, metrics = general_chunk(state, hp, first_step)
         else:  # one conditional per chunk (its predicate is unbatched), none in the steady loop
-            carry, metrics = jax.lax.cond(
+            state, metrics = jax.lax.cond(
                 steady_at(first_step, n_envs, agent.warmup, agent.delay),
-                lambda c: steady_chunk(c, hp, first_step),
-                lambda c: general_chunk(c, hp, first_step),
-                carry,
+                lambda s: steady_chunk(s, hp, first_step),
+                lambda s: general_chunk(s, hp, first_step),
+                state,
             )
-        state, pending = carry
-        state = state.replace(replay=store_pending(state.replay, pending))  # the last step's
         return state.replace(learner=learner.release(state.learner)), metrics
 
     return Trainer(
@@ -391,6 +392,6 @@ def make_train(
 def steady_at(first_step, n_envs: int, warmup: int, delay: int):
     """Whether a chunk whose first step is global step ``first_step`` may run the steady
     program: each of its steps finds ``warmup`` transitions of ``n_envs`` envs stored (its
-    own are stored after its draw) and it starts a delay period, so its actor updates (every
+    own are stored after its update) and it starts a delay period, so its actor updates (every
     ``delay``-th, counted from step 0) fall on the heads of its blocks."""
     return (first_step * n_envs >= warmup) & (first_step % delay == 0)

@@ -2,7 +2,7 @@
 
 Both halves of a step read the state it starts from: the update is the learner's update on
 the batch drawn from the buffer as the step found it, the step's transition is stored after
-the draw, and the first update comes once the buffer held ``warmup`` transitions before the
+the update, and the first update comes once the buffer held ``warmup`` transitions before the
 step. These tests compute one step's update by hand from the pieces and compare.
 """
 
@@ -61,16 +61,16 @@ def test_a_steps_update_is_the_update_on_the_buffer_before_its_transition(after_
     )
 
     assert_same_training(after.learner, by_hand, state.learner, "one step against by hand")
-    # ... and the transition stored after the draw, in the next free slot.
+    # ... and the transition stored after the update, in the next free slot.
     slot = int(state.replay.position)
     assert int(after.replay.size) == int(state.replay.size) + 1
     np.testing.assert_array_equal(after.replay.data.obs[slot], state.env.obs[0])
     np.testing.assert_array_equal(after.replay.data.obs[:slot], state.replay.data.obs[:slot])
 
 
-def test_a_transition_pending_at_a_chunks_end_is_stored_as_within_a_chunk(after_warmup_chunk):
-    """Steps 40..79 as one chunk and as two: the transition a chunk ends with is stored by
-    the chunk, one inside a chunk by the next step; the runs must not tell them apart."""
+def test_a_chunks_last_transition_is_stored_as_one_within_a_chunk(after_warmup_chunk):
+    """Steps 40..79 as one chunk and as two: step 59's transition ends a chunk in one run
+    and not in the other; the runs must not tell them apart."""
     state, _ = after_warmup_chunk
     whole = jax.jit(make_train(TINY).chunk)(state, HP, jnp.int32(40))[0]
     half = jax.jit(make_train(dataclasses.replace(TINY, chunk_steps=20)).chunk)
@@ -78,3 +78,21 @@ def test_a_transition_pending_at_a_chunks_end_is_stored_as_within_a_chunk(after_
     for a, b in zip(jax.tree.leaves(whole.replay), jax.tree.leaves(halves.replay), strict=True):
         np.testing.assert_array_equal(a, b)
     assert_same_training(halves.learner, whole.learner, state.learner, "two chunks against one")
+
+
+def test_the_single_step_loop_copies_no_field_of_the_buffer():
+    """The general program (every CPU's) stores the pending transition before the step's
+    draw, so its compile writes the buffer in place. A store after the draw in the same step
+    had a CPU copy buffer fields every step, with an optimization barrier too (0.82×,
+    ``results/bench_draw_first/``)."""
+    trainer = make_train(TINY)
+    state = trainer.init(jax.random.key(0))
+    chunk = jax.jit(trainer.chunk, donate_argnums=0)  # as the host loop: in place
+    hlo = chunk.lower(state, HP, jnp.int32(0)).compile().as_text()
+    fields = [leaf.shape for leaf in jax.tree.leaves(state.replay.data) if leaf.ndim == 2]
+    assert fields  # obs, action, advisor_action, next_obs: [buffer_size, ...]
+    shapes = {f"= f32[{','.join(map(str, shape))}]" for shape in fields}
+    copies = [
+        line for line in hlo.splitlines() if " copy(" in line and any(s in line for s in shapes)
+    ]
+    assert not copies, copies[:3]

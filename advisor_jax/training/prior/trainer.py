@@ -35,7 +35,7 @@ from advisor_jax.agent.hparams import BaselineHParams
 from advisor_jax.agent.networks import MODULES, Layout
 from advisor_jax.agent.noise import ou_step
 from advisor_jax.agent.settings import freeze
-from advisor_jax.training.draws import Pending, nothing_pending, store_pending
+from advisor_jax.training.draws import Pending, scan_pending, store_pending
 from advisor_jax.training.prior import phases
 from advisor_jax.training.prior.lfd import lfd_schedule
 from advisor_jax.training.prior.mcp import mcp_schedule
@@ -123,9 +123,8 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         )
         return state, transition, jnp.broadcast_to(acting, (n_envs,))
 
-    def step(carry: tuple[PriorState, Pending], hp: BaselineHParams, step_index, gate):
-        """(state, the previous step's transition) -> (state, this step's), metrics."""
-        state, pending = carry
+    def step(state: PriorState, hp: BaselineHParams, step_index, gate, pending: Pending):
+        """(state, the previous step's transition) -> (state, metrics, this step's)."""
         state = state.replace(replay=store_pending(state.replay, pending))
         active = (state.episodes < n_total) & ~state.diverged
         # The phase at the start of the step decides both halves; both read the buffer and
@@ -143,16 +142,13 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         )
         state = learned.replace(episodes=collected.episodes)
         state, metrics = core.finish(state, active, nonfinite, metrics)
-        return (state, Pending(transition, stored)), metrics
+        return state, metrics, Pending(transition, stored)
 
     def chunk(state: PriorState, hp, first_step: jax.Array, gate=None):
         if schedule.gated and gate is None:
             gate = phases.population_gate(schedule, state, hp, n_total, cfg.chunk_steps)
-        steps = jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
-        carry = (state, nothing_pending(n_envs))
-        carry, metrics = jax.lax.scan(lambda c, i: step(c, hp, first_step + i, gate), carry, steps)
-        state, pending = carry
-        return state.replace(replay=store_pending(state.replay, pending)), metrics
+        steps = first_step + jnp.arange(cfg.chunk_steps, dtype=jnp.int32)
+        return scan_pending(lambda s, i, p: step(s, hp, i, gate, p), state, steps, n_envs)
 
     report = PhaseReport(
         describe=phases.describe(schedule),
