@@ -3,9 +3,9 @@
 One implementation, configured by ``AgentConfig`` (``algo``, ``advisor_policy``).
 ``Learner.update`` is the one update step that training, the learner benchmark and the
 tests run: on a batch B drawn from the replay buffer (``Learner.sample``), it calls
-``critic_step`` and then,
-every ``cfg.delay``-th update (every update for the DDPG family), ``actor_step`` on the
-same batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3 steps 9-22)::
+``critic_step`` and then, every ``cfg.delay``-th update (every update for the DDPG family),
+``actor_step`` on the same batch with the freshly updated critic (Alg. 2 steps 6-15, Alg. A3
+steps 9-22)::
 
     critic_step(B):                                     # Alg. 2 steps 7-8, Alg. A3 10-14
         A' = π^T(S')                                    # DDPG / ADDPG, Eq. (4)

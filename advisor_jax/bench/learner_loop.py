@@ -63,12 +63,11 @@ def make_update_loop(
         def update(carry, u, update_fn=None):
             state, key = carry
             key, k_sample, k_critic = jax.random.split(key, 3)
+            batch = learner.sample(replay, k_sample)
             if update_fn is None:  # the delay decided from the index by a cond
-                state, _, _ = learner.update(
-                    state, learner.sample(replay, k_sample), k_critic, hp, u
-                )
+                state, _, _ = learner.update(state, batch, k_critic, hp, u)
             else:
-                state, _, _ = update_fn(state, learner.sample(replay, k_sample), k_critic, hp)
+                state, _, _ = update_fn(state, batch, k_critic, hp)
             return (state, key), None
 
         def block(carry, u):  # d updates from u, a multiple of d, written out as training's
