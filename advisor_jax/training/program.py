@@ -231,6 +231,17 @@ def holds_networks(
     return precision == "bf16" and enough
 
 
+def stores_free(program: str, agents_per_device: int | None = None) -> bool:
+    """Whether the chunk's ``program`` stores each step's transition with no barrier
+    (``train.make_train``'s ``free_store``, ``draws.store_free``), not once the step's update
+    is computed (``draws.store_after``): the latency-bound program of one agent per device
+    (``agents_per_device``; None: unknown, not free). One H100, jax 0.11.2, the full step
+    against the store after the update in one command (``results/bench_draw_first/``): 1
+    agent 1.05×, but 2 agents 0.87×. An earlier round agrees at 1 agent: the same store (commit
+    9622059) ran 1.11× the store-first order where the store after the update runs 1.05×."""
+    return program == "latency-bound" and agents_per_device == 1
+
+
 PROGRAMS = ("general", "steady", "latency-bound")
 """The chunk's programs (``population_functions``' ``program``):
 
@@ -332,7 +343,8 @@ def population_functions(
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
         hold = holds_networks(program, cfg.agent.precision, per_device)
-        trainer = make_train(cfg, program != "general", layout, hold)
+        free = stores_free(program, per_device)
+        trainer = make_train(cfg, program != "general", layout, hold, free)
         chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)
     else:  # LfD, MCP+MF: the gate from every agent but the padding ones, unbatched
         baseline = make_prior_program(cfg, layout)

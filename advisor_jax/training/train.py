@@ -25,25 +25,23 @@ program; a baseline's (LfD, MCP+MF) is built from them in ``training/prior/``;
 ``training/program.py`` picks the program.
 
 Episode budget. An agent is *active* until it has completed N_total episodes (or its losses
-went non-finite). An inactive agent keeps stepping (it is one lane of a vmapped program) but
-learns nothing: the hyperparameters declared ``freezes`` (learning rates, τ) are multiplied
-by 0, so its parameters stay exactly as they were, and its episode log ignores further
-episodes. This makes one vmapped run of many agents equal to the same agents run one by one.
+went non-finite). An inactive agent keeps stepping (one lane of a vmapped program) but learns
+nothing: the hyperparameters declared ``freezes`` (learning rates, τ) are multiplied by 0, so
+its parameters stay exactly as they were, and its episode log ignores further episodes. So
+one vmapped run of many agents equals the same agents run one by one.
 
 Static schedule. The warm-up test and the TD3 delay ``update % d == 0`` depend only on the
 global step index, which the caller passes *unbatched* (``first_step``) and the scan derives
 from ``arange``: under ``vmap`` they stay scalars, so ``lax.cond`` really skips the actor
 update on 3 of 4 steps instead of computing it and selecting.
 
-Steady program (``make_train``'s ``steady``; ``program.latency_bound`` decides where it
-pays). The chunk also holds a second program of the same steps with no conditional inside:
-blocks of d steps written out in a row, whose first step takes the actor update
-(``Learner.update_with_actor``) and whose others do not (``update_critic_only``), all past
-warm-up. One ``lax.cond`` per chunk picks it when the whole chunk is past warm-up and starts
-a delay period (``steady_at``), the general program otherwise. Both run the same operations
-on the same random streams (tests/training/test_steady_program.py,
-experiments/steady_parity.py). Without conditionals a GPU runs the whole loop as one graph
-of overlapping kernels (``program.compiler_options``; ``results/bench_train_steady/``).
+Steady program (``make_train``'s ``steady``): a second program of the same steps with no
+conditional inside, blocks of d steps written out in a row, the first with the actor update
+(``Learner.update_with_actor``), the others without (``update_critic_only``), all past
+warm-up. One ``lax.cond`` per chunk picks it when the whole chunk is past warm-up and starts a
+delay period (``steady_at``). Both run the same operations on the same random streams
+(tests/training/test_steady_program.py, experiments/steady_parity.py). Without conditionals
+a GPU runs the whole loop as one graph of overlapping kernels (``program.compiler_options``).
 """
 
 from __future__ import annotations
@@ -280,15 +278,19 @@ def make_core(cfg: TrainConfig, layout: Layout = MODULES) -> Core:
 
 
 def make_train(
-    cfg: TrainConfig, steady: bool = False, layout: Layout = MODULES, hold: bool = True
+    cfg: TrainConfig,
+    steady: bool = False,
+    layout: Layout = MODULES,
+    hold: bool = True,
+    free_store: bool = False,
 ) -> Trainer:
     """The paper's agents' program (static config): the core's steps scanned into chunks.
 
-    ``steady``: also compile the chunk's steady program, chosen per chunk (module
-    docstring; ``program.latency_bound`` decides where it pays). It is only built where it
-    exists: one update per step or no delay, and chunks a whole number of delay periods.
-    ``hold``: a chunk holds the learner's built targets and, where its layout says, critics
-    (``Learner.hold``; ``program.holds_networks`` decides where it pays).
+    ``steady``: also compile the chunk's steady program (module docstring), where it exists:
+    one update per step or no delay, and chunks a whole number of delay periods. ``hold``: a
+    chunk holds the learner's built targets and, where its layout says, critics
+    (``Learner.hold``). ``free_store``: the steady blocks store with no barrier
+    (``draws.store_free``). ``training/program.py`` decides each where it pays.
 
     Long: the factory of the chunk's closures (collect, step, the two loops), which share
     the core and its settings; each is short."""
@@ -334,7 +336,8 @@ def make_train(
             learned, metrics, nonfinite = learn(state, freeze(hp, active), step_index, drawn)
         fed, replay = (learned.learner, metrics, nonfinite), state.replay
         if pending is None:
-            fed, replay = draws.store_after(replay, transition, fed)
+            store = draws.store_free if free_store else draws.store_after
+            fed, replay = store(replay, transition, fed)
         else:
             pending = draws.Pending(transition, jnp.ones(n_envs, bool))
         learner_state, metrics, nonfinite = fed

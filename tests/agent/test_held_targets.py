@@ -113,9 +113,9 @@ def test_every_program_but_the_latency_bound_one_of_few_agents_holds_its_targets
     assert program.holds_networks("general", "bf16", 1) and program.holds_networks("steady")
     built = {}
 
-    def recording(cfg, steady, layout, hold_targets):
+    def recording(cfg, steady, layout, hold_targets, free_store):
         built[steady] = hold_targets
-        return make_train(cfg, steady, layout, hold_targets)
+        return make_train(cfg, steady, layout, hold_targets, free_store)
 
     monkeypatch.setattr(program, "make_train", recording)
     cfg = preset("quick", "ATD3+AfDP", **SIZES)[0]

@@ -96,3 +96,23 @@ def test_the_single_step_loop_copies_no_field_of_the_buffer():
         line for line in hlo.splitlines() if " copy(" in line and any(s in line for s in shapes)
     ]
     assert not copies, copies[:3]
+
+
+def _raw(leaf):
+    """A leaf as numpy can compare it: a PRNG key as its data."""
+    is_key = jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+    return jax.random.key_data(leaf) if is_key else leaf
+
+
+def test_a_free_store_trains_as_the_store_after_the_update(after_warmup_chunk):
+    """The steady blocks' two stores (``draws.store_after``, ``draws.store_free``) put the
+    same transition in the same slot before the same draw: the same chunk, bit for bit."""
+    state, _ = after_warmup_chunk  # 40 steps: past warm-up, a block head for d = 2
+    ends = []
+    for free in (False, True):
+        trainer = make_train(TINY, steady=True, free_store=free)
+        assert trainer.steady
+        end = jax.jit(trainer.chunk)(state, HP, jnp.int32(TINY.chunk_steps))[0]
+        ends.append(jax.tree.map(_raw, end))
+    for a, b in zip(jax.tree.leaves(ends[0]), jax.tree.leaves(ends[1]), strict=True):
+        np.testing.assert_array_equal(a, b)

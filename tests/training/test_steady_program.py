@@ -255,19 +255,23 @@ def test_the_population_functions_pass_the_agents_per_device_to_the_layout(monke
     assert asked == [3, None]
 
 
-def test_the_latency_bound_program_holds_bf16_networks_from_its_fewest_agents(monkeypatch):
+def test_the_latency_bound_program_holds_networks_and_stores_as_its_agents_say(monkeypatch):
     """``population_functions`` has ``make_train`` hold the learner's networks as
-    ``holds_networks`` says for its placement's agents per device and its precision."""
-    held = []
+    ``holds_networks`` says for its placement's agents per device and its precision, and
+    store with no barrier as ``stores_free`` says: one agent per device."""
+    held, free = [], []
     real = program.make_train
 
-    def spy(cfg, steady, layout, hold):
+    def spy(cfg, steady, layout, hold, free_store):
         held.append(hold)
-        return real(cfg, steady, layout, hold)
+        free.append(free_store)
+        return real(cfg, steady, layout, hold, free_store)
 
     monkeypatch.setattr(program, "make_train", spy)
     fewest = program.HELD_LATENCY_BOUND_AGENTS
     bf16 = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
-    for cfg, agents in [(bf16, fewest), (bf16, fewest - 1), (TINY, fewest)]:
+    for cfg, agents in [(bf16, fewest), (bf16, fewest - 1), (TINY, fewest), (bf16, 1)]:
         program.population_functions(cfg, place(agents, 1), "latency-bound")
-    assert held == [True, False, False]
+    assert held == [True, False, False, False]
+    assert free == [False, False, False, True]
+    assert not program.stores_free("steady", 1) and not program.stores_free("latency-bound")
