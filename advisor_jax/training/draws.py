@@ -29,7 +29,7 @@ CPU: 0.82×). So:
   step's draw need not wait for this step's update (1.05× on an H100; 2 agents ran 0.87×,
   ``program.stores_free``).
 
-The two put the same transition in the same slot before the same draw: the same training.
+The three put the same transition in the same slot before the same draw: the same training.
 """
 
 from __future__ import annotations
