@@ -131,10 +131,10 @@ def make_prior_program(cfg: TrainConfig, layout: Layout = MODULES) -> PriorProgr
         # N as the step found them.
         phase = phases.phase_index(schedule, state.episodes, state.prior.offline_steps, hp)
         collected, transition, stored = collect(state, hp, active, phase, gate)
-        draws = core.draw(state.replay, collected.key)
+        drawn = core.draw(state.replay, collected.key)
 
         def rl_learn(state: PriorState, hp: BaselineHParams, step_index: jax.Array):
-            return core.learn(state, hp.rl, step_index, draws)
+            return core.learn(state, hp.rl, step_index, drawn)
 
         learning = collected.replace(episodes=state.episodes)
         learned, metrics, nonfinite = phases.learn(
