@@ -23,6 +23,13 @@ which every step changes: no key to carry, the same in a vmapped population as i
 run, and equal for parameters of equal magnitude, which the held critics need (their tied
 ``-K_a`` rows stay the exact negation of the ``+K_a`` rows; ``held_critics``).
 
+The parameters themselves may be bf16 (``apply_updates``): the held critics' matrices of a
+bf16 learner on a GPU (``networks.Layout.bf16_critic_weights``, ``held_critics``). Then θ + u
+is taken in fp32 and rounded stochastically as v is, its random bits a hash of that sum: an
+update below bf16's resolution (a parameter near 0.03 has steps of 1.2·10⁻⁴; Adam's step is
+about the learning rate, 10⁻³ or 10⁻⁴, and the soft update's τ·(θ - θ^T) far less) still
+moves the parameter by itself on average, where rounding to nearest would drop it.
+
 Both moments are read back as fp32 (optax's bf16 m is multiplied by β₁ in bf16, 0.8984), and
 the stored moments pass an optimization barrier: without it XLA recomputed a steady block's
 earlier moments inside later passes, from every earlier gradient, and the passes moved more
@@ -46,7 +53,7 @@ def dither(values: jax.Array) -> jax.Array:
     (the hash spreads a difference of one unit over the top bits; only a shift shared by all
     entries would shift all their draws alike). Equal for ``±x``; the pass reads the
     parameters anyway."""
-    magnitude = jax.lax.bitcast_convert_type(jnp.abs(values), jnp.uint32)
+    magnitude = jax.lax.bitcast_convert_type(jnp.abs(values.astype(jnp.float32)), jnp.uint32)
     return (magnitude * jnp.uint32(0x9E3779B9)) >> 16
 
 
@@ -59,6 +66,25 @@ def stochastic_bf16(x: jax.Array, bits: jax.Array) -> jax.Array:
     kept = ((raw + bits) >> 16).astype(jnp.uint16)
     rounded = jax.lax.bitcast_convert_type(kept, jnp.bfloat16)
     return jnp.where(jnp.isfinite(x), rounded, x.astype(jnp.bfloat16))
+
+
+def rounded_like(x: jax.Array, like: jax.Array) -> jax.Array:
+    """fp32 ``x`` in ``like``'s dtype: bf16 stochastically rounded (``stochastic_bf16``, its
+    bits ``dither(x)``), so that a bf16 parameter moves by its fp32 update on average;
+    anything else as ``astype`` casts it."""
+    if like.dtype != jnp.bfloat16:
+        return x.astype(like.dtype)
+    return stochastic_bf16(x, dither(x))
+
+
+def apply_updates(params: Any, updates: Any) -> Any:
+    """``optax.apply_updates`` (θ + u, in θ's dtype), each sum taken in fp32 and bf16
+    parameters rounded stochastically (``rounded_like``): the same for fp32 parameters."""
+    return jax.tree.map(
+        lambda p, u: rounded_like(p.astype(jnp.float32) + u.astype(jnp.float32), p),
+        params,
+        updates,
+    )
 
 
 def scale_by_adam(

@@ -7,7 +7,10 @@ gradient came back through the build's transpose. Held, the fp32 augmented matri
 the parameters θ and θ^T for the length of a chunk (``Learner.hold`` at its start,
 ``release`` at its end, as the target networks are held): Adam and the soft update (Eqs. 5-7)
 work on them directly, and in bf16 Adam's pass also writes the bf16 copy that the next
-step's GEMMs read. No build remains in the loop.
+step's GEMMs read. No build remains in the loop. With ``hold``'s ``in_dtype`` (a GPU's bf16
+learners, ``networks.Layout.bf16_critic_weights``) the hidden matrices are held in bf16 only:
+no fp32 master and no copy, each update rounded stochastically (``adam.apply_updates``,
+``soft_update``), so that Adam's pass moves 14 bytes per parameter instead of 20.
 
 The same updates as the flax parameters get, entry by entry:
 
@@ -42,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from advisor_jax.agent import gemm_layers
+from advisor_jax.agent import adam, gemm_layers, update_rules
 from advisor_jax.agent.networks import apply_critics
 
 
@@ -140,16 +143,27 @@ def _adam_states(opt_state: Any, convert: Callable[[Any, str], Any]) -> Any:
 
 def copies(matrices: list[jax.Array], dtype: Any) -> list[jax.Array] | None:
     """The hidden layers' matrices in the compute ``dtype``, as ``gemm_layers.critic_matrices``
-    builds them (the head stays fp32); None for fp32, where the GEMMs read the matrices."""
-    if jnp.dtype(dtype) == jnp.float32:
+    builds them (the head stays fp32); None where the GEMMs read the matrices themselves:
+    fp32, or hidden matrices held in ``dtype`` already (``hold``'s ``in_dtype``)."""
+    if jnp.dtype(dtype) == jnp.float32 or matrices[0].dtype == jnp.dtype(dtype):
         return None
     return [m.astype(dtype) for m in matrices[:-1]]
 
 
-def hold(critic: Any, target_critic: Any, critic_opt: Any, s: Structure, dtype: Any) -> HeldCritics:
+def hold(
+    critic: Any,
+    target_critic: Any,
+    critic_opt: Any,
+    s: Structure,
+    dtype: Any,
+    in_dtype: bool = False,
+) -> HeldCritics:
     """The flax parameters θ, θ^T (leading critic axis) and their Adam state, held as
     matrices. Adam's moments are 0 on structure; ν, like a square, is positive on the
-    ``-K_a`` rows (μ, like the gradient, negative)."""
+    ``-K_a`` rows (μ, like the gradient, negative). ``in_dtype``: the hidden matrices held in
+    the compute ``dtype`` itself (rounded to nearest, exact for parameters a chunk held so),
+    no fp32 master and no copy; the updates round them stochastically
+    (``adam.apply_updates``, ``soft_update``)."""
 
     def moments(tree, name):
         dtype_of = jax.tree.leaves(tree)[0].dtype
@@ -159,7 +173,22 @@ def hold(critic: Any, target_critic: Any, critic_opt: Any, s: Structure, dtype: 
 
     online, target = _build(critic), _build(target_critic)
     opt = _adam_states(critic_opt, moments)
+    if in_dtype:
+        online, target = ([*_in(m[:-1], dtype), m[-1]] for m in (online, target))
     return HeldCritics(online, target, opt, copies(online, dtype), copies(target, dtype))
+
+
+def _in(matrices: list[jax.Array], dtype: Any) -> list[jax.Array]:
+    return [m.astype(dtype) for m in matrices]
+
+
+def soft_update(target: list[jax.Array], online: list[jax.Array], tau) -> list[jax.Array]:
+    """Eqs. (6), (7) on the held matrices (``update_rules.soft_update``) in fp32, bf16
+    matrices rounded stochastically (``adam.rounded_like``). Structure stays exact: τ·1 +
+    (1 - τ)·1 rounds to 1 in fp32 (and 0 to 0), which bf16 holds; ``±`` rows alike."""
+    f32 = lambda ms: [m.astype(jnp.float32) for m in ms]  # noqa: E731
+    mixed = update_rules.soft_update(f32(target), f32(online), tau)
+    return [adam.rounded_like(x, t) for x, t in zip(mixed, target, strict=True)]
 
 
 def _unbuild(matrices: list[jax.Array], template: Any, s: Structure) -> Any:
@@ -229,5 +258,7 @@ def global_norm(grads: list[jax.Array], s: Structure) -> jax.Array:
 
 
 def q_values(held: HeldCritics, obs: jax.Array, action: jax.Array, per_critic: bool) -> jax.Array:
-    """Q of every critic, ``[n_critics, ...]``, at fp32 from the held parameters (acting)."""
-    return apply_critics(gemm_layers.critic_forward, held.online, obs, action, per_critic)
+    """Q of every critic, ``[n_critics, ...]``, at fp32 from the held parameters (acting;
+    matrices held in bf16 read as fp32)."""
+    online = [m.astype(jnp.float32) for m in held.online]
+    return apply_critics(gemm_layers.critic_forward, online, obs, action, per_critic)

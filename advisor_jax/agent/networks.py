@@ -146,6 +146,10 @@ class Layout(NamedTuple):
     head_sums: bool = False
     """With ``layers_in_gemm``: a bf16 network's fp32 output head from its bf16 activations as
     products summed per output, not a cast and a GEMM (``gemm_layers``' ``head_sums``)."""
+    bf16_critic_weights: bool = False
+    """With ``held_critics``: a bf16 learner's held critics keep their hidden matrices (θ and
+    θ^T) in bf16 only, each update rounded stochastically (``held_critics.hold``'s
+    ``in_dtype``): no fp32 master to read and write, no copy to write."""
 
 
 MODULES = Layout()

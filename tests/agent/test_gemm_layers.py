@@ -170,7 +170,7 @@ def test_a_learner_on_gemm_layers_takes_the_modules_updates():
 def test_gpus_get_the_layout_and_cpus_the_modules():
     assert network_layout("gpu") == networks.Layout(
         inputs_per_critic=True, layers_in_gemm=True, first_layer_kernel=True,
-        bf16_first_moment=True, bf16_second_moment=True,
+        bf16_first_moment=True, bf16_second_moment=True, bf16_critic_weights=True,
     )  # fmt: skip
     assert network_layout("cpu") == networks.MODULES
 

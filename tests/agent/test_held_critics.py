@@ -119,11 +119,13 @@ def test_held_critics_train_as_the_trees_do(precision):
     )
 
 
-@pytest.mark.parametrize("moments", ["fp32", "bf16"])
+@pytest.mark.parametrize("moments", ["fp32", "bf16", "bf16 and bf16 weights"])
 def test_the_structure_stays_exact_through_updates(moments):
-    # bf16 moments: v's stochastic rounding draws the same for the tied ±K_a rows (adam.dither)
-    bf16 = moments == "bf16"
-    layout = HELD._replace(bf16_first_moment=bf16, bf16_second_moment=bf16)
+    # bf16 moments: v's stochastic rounding draws the same for the tied ±K_a rows (adam.dither);
+    # bf16 weights: so does the rounding of the parameters and targets (adam.rounded_like)
+    bf16, weights = moments != "fp32", moments.endswith("weights")
+    layout = HELD._replace(bf16_first_moment=bf16, bf16_second_moment=bf16,
+                           bf16_critic_weights=weights)  # fmt: skip
     cfg = _cfg("bf16")
     learner = make_learner(cfg, layout=layout)
     replay = fill_replay(cfg.buffer_size, jax.random.key(1))
