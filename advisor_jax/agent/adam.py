@@ -45,16 +45,33 @@ import jax.numpy as jnp
 import optax
 
 
-def dither(values: jax.Array) -> jax.Array:
+def dither(values: jax.Array, salt: jax.Array | int | None = None) -> jax.Array:
     """16 random bits per entry (uint32 in [0, 2¹⁶)) from fp32 ``values``, the parameters: the
     top half of ``|values|``' bits times ⌊2³²/φ⌋ (Knuth's multiplicative hash). An Adam step
-    moves a parameter by thousands of units in its last place, by amounts that differ from
-    entry to entry and step to step, so the draws are new at every step and unrelated to v's
-    (the hash spreads a difference of one unit over the top bits; only a shift shared by all
-    entries would shift all their draws alike). Equal for ``±x``; the pass reads the
-    parameters anyway."""
+    moves an fp32 parameter by thousands of units in its last place, by amounts that differ
+    from entry to entry and step to step, so the draws are new at every step and unrelated to
+    v's (the hash spreads a difference of one unit over the top bits; only a shift shared by
+    all entries would shift all their draws alike). Equal for ``±x``; the pass reads the
+    parameters anyway.
+
+    With a ``salt`` (the step's count): ``|values|``' bits mixed with the salt's by an integer
+    hash (``_mix``). Needed where the values repeat from step to step: a bf16 parameter stays
+    put until its rounding moves it, and θ + u repeats while Adam's step u does; unsalted, the
+    same draw would round it the same way at every step (stuck, or a whole bf16 step each
+    time)."""
     magnitude = jax.lax.bitcast_convert_type(jnp.abs(values.astype(jnp.float32)), jnp.uint32)
-    return (magnitude * jnp.uint32(0x9E3779B9)) >> 16
+    if salt is None:
+        return (magnitude * jnp.uint32(0x9E3779B9)) >> 16
+    salted = magnitude ^ _mix(jnp.asarray(salt).astype(jnp.uint32) + jnp.uint32(0x9E3779B9))
+    return _mix(salted) >> 16
+
+
+def _mix(h: jax.Array) -> jax.Array:
+    """A 32-bit integer hash (Wellons' "lowbias32": xor-shifts and two odd multipliers), each
+    input bit flipping about half of the output bits."""
+    h = (h ^ (h >> 16)) * jnp.uint32(0x7FEB352D)
+    h = (h ^ (h >> 15)) * jnp.uint32(0x846CA68B)
+    return h ^ (h >> 16)
 
 
 def stochastic_bf16(x: jax.Array, bits: jax.Array) -> jax.Array:
@@ -68,20 +85,21 @@ def stochastic_bf16(x: jax.Array, bits: jax.Array) -> jax.Array:
     return jnp.where(jnp.isfinite(x), rounded, x.astype(jnp.bfloat16))
 
 
-def rounded_like(x: jax.Array, like: jax.Array) -> jax.Array:
+def rounded_like(x: jax.Array, like: jax.Array, salt: jax.Array | int) -> jax.Array:
     """fp32 ``x`` in ``like``'s dtype: bf16 stochastically rounded (``stochastic_bf16``, its
-    bits ``dither(x)``), so that a bf16 parameter moves by its fp32 update on average;
-    anything else as ``astype`` casts it."""
+    bits ``dither(x, salt)``; ``salt``: the step's count), so that a bf16 parameter moves by
+    its fp32 update on average; anything else as ``astype`` casts it."""
     if like.dtype != jnp.bfloat16:
         return x.astype(like.dtype)
-    return stochastic_bf16(x, dither(x))
+    return stochastic_bf16(x, dither(x, salt))
 
 
-def apply_updates(params: Any, updates: Any) -> Any:
+def apply_updates(params: Any, updates: Any, salt: jax.Array | int) -> Any:
     """``optax.apply_updates`` (θ + u, in θ's dtype), each sum taken in fp32 and bf16
-    parameters rounded stochastically (``rounded_like``): the same for fp32 parameters."""
+    parameters rounded stochastically (``rounded_like``, ``salt`` the step's count): the
+    same for fp32 parameters."""
     return jax.tree.map(
-        lambda p, u: rounded_like(p.astype(jnp.float32) + u.astype(jnp.float32), p),
+        lambda p, u: rounded_like(p.astype(jnp.float32) + u.astype(jnp.float32), p, salt),
         params,
         updates,
     )
@@ -122,7 +140,9 @@ def scale_by_adam(
         steps = jax.tree.map(lambda m, v: m / (jnp.sqrt(v) + eps), mu_hat, nu_hat)
         if mu_dtype is not None:
             mu = jax.tree.map(lambda m: m.astype(mu_dtype), mu)
-        nu = jax.tree.map(lambda v, p: stochastic_bf16(v, dither(p)), nu, params)
+        # a bf16 parameter may not move between steps: its draws need the count (dither)
+        salt = lambda p: count if p.dtype == jnp.bfloat16 else None  # noqa: E731
+        nu = jax.tree.map(lambda v, p: stochastic_bf16(v, dither(p, salt(p))), nu, params)
         # Stored, not recomputed: without the barrier XLA fused the moments' moving averages
         # of a steady block's earlier updates into the later updates' passes, which then
         # read every earlier gradient again instead of the stored moments.

@@ -182,13 +182,16 @@ def _in(matrices: list[jax.Array], dtype: Any) -> list[jax.Array]:
     return [m.astype(dtype) for m in matrices]
 
 
-def soft_update(target: list[jax.Array], online: list[jax.Array], tau) -> list[jax.Array]:
+def soft_update(
+    target: list[jax.Array], online: list[jax.Array], tau, salt: jax.Array | int
+) -> list[jax.Array]:
     """Eqs. (6), (7) on the held matrices (``update_rules.soft_update``) in fp32, bf16
-    matrices rounded stochastically (``adam.rounded_like``). Structure stays exact: τ·1 +
-    (1 - τ)·1 rounds to 1 in fp32 (and 0 to 0), which bf16 holds; ``±`` rows alike."""
+    matrices rounded stochastically (``adam.rounded_like``; ``salt``: the soft update's
+    count). Structure stays exact: τ·1 + (1 - τ)·1 rounds to 1 in fp32 (and 0 to 0), which
+    bf16 holds; ``±`` rows alike."""
     f32 = lambda ms: [m.astype(jnp.float32) for m in ms]  # noqa: E731
     mixed = update_rules.soft_update(f32(target), f32(online), tau)
-    return [adam.rounded_like(x, t) for x, t in zip(mixed, target, strict=True)]
+    return [adam.rounded_like(x, t, salt) for x, t in zip(mixed, target, strict=True)]
 
 
 def _unbuild(matrices: list[jax.Array], template: Any, s: Structure) -> Any:

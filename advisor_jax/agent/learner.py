@@ -236,7 +236,7 @@ def make_learner(
 
         (_, (losses, q)), grads, params, opt, norm = critic_gradient(state, loss_fn)
         updates, opt = adam(hp.lr_critic).update(grads, opt, params)
-        params = optimizer.apply_updates(params, updates)
+        params = optimizer.apply_updates(params, updates, state.critic_updates)
         if state.held is None:
             new_state = state.replace(critic=params, critic_opt=opt)
         else:  # in bf16 the copy the GEMMs read is written in Adam's pass
@@ -301,7 +301,8 @@ def make_learner(
                 target_critic=soft_update(state.target_critic, state.critic, hp.tau)
             )
         else:  # the structure's entries stay exact: τ·1 + (1 - τ)·1 rounds to 1 (and so 0, ±)
-            target = held_critics.soft_update(state.held.target, state.held.online, hp.tau)
+            target = held_critics.soft_update(state.held.target, state.held.online, hp.tau,
+                                              state.actor_updates)  # fmt: skip
             copy = held_critics.copies(target, critic.dtype)
             new_state = new_state.replace(held=state.held._replace(target=target,
                                                                    target_copy=copy))  # fmt: skip
