@@ -25,7 +25,8 @@ run, and equal for parameters of equal magnitude, which the held critics need (t
 
 The parameters themselves may be bf16 (``apply_updates``): the held critics' matrices of a
 bf16 learner on a GPU (``networks.Layout.bf16_critic_weights``, ``held_critics``). Then θ + u
-is taken in fp32 and rounded stochastically as v is, its random bits a hash of that sum: an
+is taken in fp32 and rounded stochastically as v is, its random bits a hash of that sum and
+the step's count (``dither``'s salt; v's too, since the parameter may not move): an
 update below bf16's resolution (a parameter near 0.03 has steps of 1.2·10⁻⁴; Adam's step is
 about the learning rate, 10⁻³ or 10⁻⁴, and the soft update's τ·(θ - θ^T) far less) still
 moves the parameter by itself on average, where rounding to nearest would drop it.
