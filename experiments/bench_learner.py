@@ -53,7 +53,10 @@ from advisor_jax.training.program import PROGRAMS, choose_program, network_layou
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
-    "bf16": "bf16 hidden layers (fp32 parameters and accumulation; on GPUs Adam's m and v in bf16)",
+    "bf16": (
+        "bf16 hidden layers (fp32 accumulation; on GPUs Adam's m and v in bf16, and held "
+        "critics' hidden matrices in bf16 only)"
+    ),
 }
 
 

@@ -79,7 +79,7 @@ def make_update_loop(
         body, starts = (
             (block, jnp.arange(0, n_updates, delay)) if steady else (update, jnp.arange(n_updates))
         )
-        if holds_networks(program, cfg.precision, agents_per_device):  # as training's program
+        if holds_networks(program, cfg.precision):  # as training's program
             learner_state = learner.hold(learner_state)
         carry = (learner_state, key)
         (learner_state, _), _ = jax.lax.scan(body, carry, starts)

@@ -15,8 +15,8 @@ leave open:
   layout (``twin_inputs_per_critic``), each hidden layer as one GEMM
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
   (``holds_networks``) and whose critics, for fp32 learners in the general program and bf16
-  populations in the steady one and, but for the fewest agents, in the latency-bound one, it
-  holds as the matrices the GEMMs read
+  populations in the steady and the latency-bound ones, it holds as the matrices the GEMMs
+  read
   (``holds_critics``, ``program_layout``), whether a bf16 learner's fp32 output heads are
   products summed per output (``sums_heads``), and the critic's first-layer kernel
   (``agent/masked_wgrad.py``);
@@ -157,15 +157,6 @@ commands) and 1.01× at 256, peak 6.18 / 25.21 GiB against 5.69 / 22.61; 0.98× 
 agents 0.93× (the compiler wanted 82.5 GiB and rematerialized), peak 48.88 GiB against 45.84
 (``results/bench_held_critics/``)."""
 
-HELD_LATENCY_BOUND_AGENTS = 4
-"""The fewest agents per device whose latency-bound program holds a bf16 learner's networks:
-its target networks built and its critics as their GEMM layers' matrices
-(``holds_networks``, ``holds_critics``). One H100, jax 0.11.2, the full step held against not
-held, in one command each: 4 agents 1.03× and 1.04× (two commands), 16 agents 1.03×, 32
-agents 1.05× and 1.05×; but 1 agent 0.92× (``results/bench_latency_bound_held/``). fp32
-learners keep the latency-bound program unheld: 1.07× at 32 agents in one command, the rest
-not measured."""
-
 
 def holds_critics(program: str, precision: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` holds its ``precision`` learners' critics as their GEMM
@@ -179,16 +170,16 @@ def holds_critics(program: str, precision: str, agents_per_device: int | None = 
       step 1.01× (1.047× more after the gradient norm's row sums);
     * bf16 learners in the steady program with at most ``HELD_STEADY_BF16_AGENTS`` agents
       per device (``agents_per_device``; None: unknown, not held);
-    * bf16 learners in the latency-bound program with at least ``HELD_LATENCY_BOUND_AGENTS``
-      agents per device (with their target networks, ``holds_networks``).
+    * bf16 learners in the latency-bound program (with their target networks,
+      ``holds_networks``).
 
     Not measured to pay, so not held: fp32's steady program (slower and more memory than its
     general one), bf16's general program (which one GPU gives only to populations too large
-    for the steady one), the latency-bound program's fewest agents and its fp32 learners."""
+    for the steady one), the latency-bound program's fp32 learners."""
     if (program, precision) == ("general", "fp32"):
         return True
     if program == "latency-bound":
-        return holds_networks(program, precision, agents_per_device)
+        return holds_networks(program, precision)
     small = agents_per_device is not None and agents_per_device <= HELD_STEADY_BF16_AGENTS
     return (program, precision) == ("steady", "bf16") and small
 
@@ -215,24 +206,26 @@ def program_layout(
     return layout._replace(held_critics=held, head_sums=gemm and sums_heads(program))
 
 
-def holds_networks(
-    program: str, precision: str = "fp32", agents_per_device: int | None = None
-) -> bool:
+def holds_networks(program: str, precision: str = "fp32") -> bool:
     """Whether the chunk's ``program`` (one of ``PROGRAMS``) has its ``precision`` learners
     hold the target networks built (``Learner.hold``; only with ``layers_in_gemm``): once per
     soft update instead of once per critic step, the same updates. Every program but the
-    latency-bound one, which holds them only for bf16 learners with at least
-    ``HELD_LATENCY_BOUND_AGENTS`` agents per device (``agents_per_device``; None: unknown, not
-    held), and then their critics too. One H100, jax 0.11.2, against the tree
-    before in one command: the 64-agent bf16 step ran 1.05× (the 128-agent learner 1.04×),
-    fp32 1.00×, and the 1-agent bf16 step, the latency-bound program, 0.95×
-    (``results/bench_held_targets/``); held with its critics (``holds_critics``), the
-    latency-bound program's bf16 step 0.92× at 1 agent and 1.03-1.05× from 4 agents up
-    (``HELD_LATENCY_BOUND_AGENTS``)."""
+    latency-bound one, which holds them, and then its critics too (``holds_critics``), for bf16
+    learners only. One H100, jax 0.11.2, the full step against the tree before in one command
+    each:
+
+    * every program but the latency-bound one: the 64-agent bf16 step 1.05× (the 128-agent
+      learner 1.04×), fp32 1.00× (``results/bench_held_targets/``);
+    * the latency-bound program's bf16 learners, with their critics: 1.03-1.05× from 4 to 32
+      agents (``results/bench_latency_bound_held/``); 1 and 2 agents too since the held
+      critics' hidden matrices are bf16 only (``Layout.bf16_critic_weights``): 1.09× and
+      1.08× at 1 agent, 1.03× and 1.04× at 2, in two commands
+      (``results/bench_bf16_critic_weights/``), where before they had run 0.92× at 1 agent;
+    * its fp32 learners keep the program unheld: 1.07× at 32 agents in one command, the rest
+      not measured."""
     if program != "latency-bound":
         return True
-    enough = agents_per_device is not None and agents_per_device >= HELD_LATENCY_BOUND_AGENTS
-    return precision == "bf16" and enough
+    return precision == "bf16"
 
 
 def stores_free(program: str, agents_per_device: int | None = None) -> bool:
@@ -346,7 +339,7 @@ def population_functions(
     # written; tests/training/test_collectives.py injects one to show that its check of the
     # compiled chunk (no collective inside the scan) catches it.
     if cfg.agent.baseline is None:
-        hold = holds_networks(program, cfg.agent.precision, per_device)
+        hold = holds_networks(program, cfg.agent.precision)
         free = stores_free(program, per_device)
         trainer = make_train(cfg, program != "general", layout, hold, free)
         chunk = jax.vmap(trainer.chunk, in_axes=(0, 0, None), axis_name=AXIS)

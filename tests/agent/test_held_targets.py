@@ -104,13 +104,11 @@ def test_a_chunk_takes_and_returns_the_state_without_held_networks(held_critics)
     assert jax.tree.structure(out) == jax.tree.structure(state)  # flax trees (agent/held_critics)
 
 
-def test_every_program_but_the_latency_bound_one_of_few_agents_holds_its_targets(monkeypatch):
+def test_every_program_but_the_latency_bound_one_of_fp32_learners_holds_its_targets(monkeypatch):
     assert [program.holds_networks(p) for p in program.PROGRAMS] == [True, True, False]
-    fewest = program.HELD_LATENCY_BOUND_AGENTS
-    assert program.holds_networks("latency-bound", "bf16", fewest)
-    assert not program.holds_networks("latency-bound", "bf16", fewest - 1)
-    assert not program.holds_networks("latency-bound", "fp32", program.LATENCY_BOUND_AGENTS)
-    assert program.holds_networks("general", "bf16", 1) and program.holds_networks("steady")
+    assert program.holds_networks("latency-bound", "bf16")
+    assert not program.holds_networks("latency-bound", "fp32")
+    assert program.holds_networks("general", "bf16") and program.holds_networks("steady")
     built = {}
 
     def recording(cfg, steady, layout, hold_targets, free_store):
