@@ -7,9 +7,10 @@ seeds and evaluation episodes, each loaded as ``advisor-jax report`` loads runs 
 each, on the evaluation both share), and TREATMENT − CONTROL in success, seed by seed, per
 arena, with the 95 % t interval of the mean difference (``stats.paired_difference``).
 
-    python experiments/paired_runs.py results/table1_stable/run_data/ATD3_AfDP \\
-        results/precision_study/run_data/atd3_afdp_stable_held_critics_fp32 \\
-        --out results/precision_study/held_critics_fp32
+    python experiments/paired_runs.py CONTROL_RUN TREATMENT_RUN --out OUT
+
+(results/precision_study.md names each pairing it made, e.g. a bf16 population trained by
+the tree before a change against one trained after it).
 
 Writes ``paired.md`` and ``paired.json`` into ``--out``; refuses runs whose settings,
 seeds or evaluation episodes differ. Where both runs kept metrics.npz, it also counts the

@@ -63,9 +63,10 @@ ADAM = "Adam (and the soft update) over one layer's parameters"
 def role_of(shape: str, op_name: str) -> str:
     """What a memory-bound kernel does, from its output and JAX op name. Adam's passes write
     several arrays of one layer's shape (the parameter, its moments, its bf16 copy, the target
-    network's) from an elementwise op."""
+    network's) from an elementwise op; with the held critics in bf16 only
+    (``Layout.bf16_critic_weights``) the last op is stochastic rounding's ``where``."""
     dims = re.findall(r"\w+\[([^\]]*)\]", shape)
-    elementwise = re.search(r"/(convert_element_type|add|sub|mul)$", op_name)
+    elementwise = re.search(r"/(convert_element_type|add|sub|mul|select_n)$", op_name)
     if len(dims) >= 2 and len(set(dims)) == 1 and elementwise:
         return ADAM
     for pattern, role in (

@@ -50,6 +50,8 @@ def test_the_join_gives_xla_kernels_a_rate_and_library_calls_none():
     "shape, op_name, role",
     [
         ("(bf16[2,8]{1,0}, f32[2,8]{1,0})", "critic_step/convert_element_type", "ADAM"),
+        ("(bf16[2,8]{1,0}, bf16[2,8]{1,0}, bf16[2,8]{1,0})", "critic_step/jit(_where)/select_n",
+         "ADAM"),
         ("(f32[2,9]{1,0}, f32[2,9]{1,0}, f32[2,9]{1,0})", "critic_step/vmap()/reduce_sum", ""),
         ("(f32[9,1]{1,0}, f32[9,1]{1,0})", "actor_step/transpose(jvp())/unstack", ""),
         ("bf16[2,9]{1,0}", "critic_step/transpose(critic_step)/jvp(jit(_where))/select_n",
