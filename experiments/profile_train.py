@@ -23,7 +23,7 @@ learning start, and reports per environment step:
     python experiments/profile_train.py --preset quick --agents 1 --chunk 20   # CPU smoke run
 
 The chunk is training's program for each population (``--program auto``,
-``program.choose_program``). At most ``program.LATENCY_BOUND_AGENTS`` agents per GPU that is
+``program.choose_program``). At most ``program.latency_bound_agents`` agents per GPU that is
 the latency-bound program, whose loop runs as one CUDA graph: the profiler sees the graph's
 launch, not its kernels, and the report says so. ``--program steady`` traces the same
 kernels without the whole-loop graph.

@@ -48,7 +48,7 @@ def make_update_loop(
     * steady: blocks of d updates written out in a row whose first takes the actor step, no
       conditional, each loop one graph (what one GPU gives bf16 populations its memory holds).
     * latency-bound: the steady loop with overlapping kernels (populations of at most
-      ``program.LATENCY_BOUND_AGENTS``). Timed alone that way the update is not faster
+      ``program.latency_bound_agents``). Timed alone that way the update is not faster
       (``results/bench_train_steady/``): the program pays in the full step, where the
       collection's kernels overlap the update's, which only ``bench_train.py`` measures.
 

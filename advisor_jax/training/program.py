@@ -10,7 +10,7 @@ leave open:
 * the chunk's program (``PROGRAMS``, ``choose_program``): the general program, the steady
   one (``train.make_train``'s ``steady``: sharded populations on GPUs, and bf16 populations
   on one GPU whose memory holds it) or the latency-bound one (the steady program with
-  overlapping kernels, for at most ``LATENCY_BOUND_AGENTS`` agents per GPU);
+  overlapping kernels, for at most ``latency_bound_agents(precision)`` agents per GPU);
 * how the learner's networks are computed (``network_layout``): the twin critics' input
   layout (``twin_inputs_per_critic``), each hidden layer as one GEMM
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
@@ -38,10 +38,18 @@ from advisor_jax.training.prior.trainer import make_prior_program
 from advisor_jax.training.train import make_train
 
 LATENCY_BOUND_AGENTS = 32
-"""Populations of at most this many agents per device run, on GPUs, the latency-bound
-program: the chunk's steady program compiled with overlapping kernels and whole-loop graphs
-(``compiler_options``). Its kernels are too small to fill a GPU one at a time; larger
-populations fill it (``results/bench_train_steady/``)."""
+"""Populations of fp32 learners of at most this many agents per device run, on GPUs, the
+latency-bound program: the chunk's steady program compiled with overlapping kernels and
+whole-loop graphs (``compiler_options``). Its kernels are too small to fill a GPU one at a
+time; larger populations fill it (``results/bench_train_steady/``)."""
+
+LATENCY_BOUND_BF16_AGENTS = 64
+"""``LATENCY_BOUND_AGENTS`` for bf16 learners. At 64 bf16 agents the latency-bound program
+(with the heads summed, ``sums_heads``) ran faster than the steady one, where since the
+draw-first store (``training/draws.py``) the collection's kernels may run beside the update's:
+one H200, jax 0.11.2, each pair in one command: 1.02× and 1.034× (ABBA order) without the head
+sums, which then ran 1.022× (ABBA), at the same peak memory; 128 agents ran 0.99×
+(``results/bench_latency_bound_64/``)."""
 
 STEADY_BF16_BYTES_PER_AGENT = int(1.25 * 45.84 / 512 * 2**30)
 """What one ``paper``-size bf16 agent is given of a GPU's memory when the steady program is
@@ -184,14 +192,20 @@ def holds_critics(program: str, precision: str, agents_per_device: int | None = 
     return (program, precision) == ("steady", "bf16") and small
 
 
-def sums_heads(program: str) -> bool:
+def sums_heads(program: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` computes a bf16 learner's fp32 output heads from its bf16
     activations as products summed per output (``Layout.head_sums``; only with
     ``layers_in_gemm``), not a cast and an fp32 GEMM. One H100, jax 0.11.2, against the tree
     before in one command each: the 128-agent bf16 learner 1.022× (steady program, two
     commands), the 64-agent bf16 step 1.024×; but the 1-agent step, the latency-bound program,
-    0.98× and 0.963× (two commands), so not there (``results/bench_head_sums/``)."""
-    return program != "latency-bound"
+    0.98× and 0.963× (two commands), so not in the latency-bound program of at most
+    ``LATENCY_BOUND_AGENTS`` agents per device (``agents_per_device``; None: unknown, as
+    there) (``results/bench_head_sums/``). Its larger bf16 populations (up to
+    ``LATENCY_BOUND_BF16_AGENTS``) sum them: 64 agents 1.022× on one H200
+    (``results/bench_latency_bound_64/``)."""
+    if program != "latency-bound":
+        return True
+    return agents_per_device is not None and agents_per_device > LATENCY_BOUND_AGENTS
 
 
 def program_layout(
@@ -203,7 +217,8 @@ def program_layout(
     layout = network_layout(backend)
     gemm = layout.layers_in_gemm
     held = gemm and holds_critics(program, precision, agents_per_device)
-    return layout._replace(held_critics=held, head_sums=gemm and sums_heads(program))
+    heads = gemm and sums_heads(program, agents_per_device)
+    return layout._replace(held_critics=held, head_sums=heads)
 
 
 def holds_networks(program: str, precision: str = "fp32") -> bool:
@@ -247,20 +262,30 @@ PROGRAMS = ("general", "steady", "latency-bound")
 * ``steady``: past warm-up, blocks of d steps written out, the first with the actor step, no
   conditional in the loop (``train.make_train``'s ``steady``), XLA's scheduling;
 * ``latency-bound``: the steady program compiled with overlapping kernels and whole-loop
-  graphs (``compiler_options``): faster for small populations, more memory.
+  graphs (``compiler_options``): faster for small populations (``latency_bound_agents``),
+  more memory.
 
 Where a config has no steady program (``make_train``) the steady ones fall back to the
 general program."""
 
 
-def latency_bound(placement: Placement | None, backend: str | None = None) -> bool:
-    """Whether ``placement``'s population gets the latency-bound program on ``backend``
-    (JAX's default when None): at most ``LATENCY_BOUND_AGENTS`` agents per GPU. An unknown
-    population (None) does not."""
+def latency_bound_agents(precision: str) -> int:
+    """The most agents per GPU of ``precision`` learners that get the latency-bound program:
+    ``LATENCY_BOUND_BF16_AGENTS`` for bf16, ``LATENCY_BOUND_AGENTS`` for fp32."""
+    return LATENCY_BOUND_BF16_AGENTS if precision == "bf16" else LATENCY_BOUND_AGENTS
+
+
+def latency_bound(
+    placement: Placement | None, backend: str | None = None, precision: str = "fp32"
+) -> bool:
+    """Whether ``placement``'s population of ``precision`` learners gets the latency-bound
+    program on ``backend`` (JAX's default when None): at most
+    ``latency_bound_agents(precision)`` agents per GPU. An unknown population (None) does
+    not."""
     backend = jax.default_backend() if backend is None else backend
     if backend != "gpu" or placement is None:
         return False
-    return placement.n_padded // placement.n_devices <= LATENCY_BOUND_AGENTS
+    return placement.n_padded // placement.n_devices <= latency_bound_agents(precision)
 
 
 def steady_fits(placement: Placement, memory_bytes: int | None = None) -> bool:
@@ -284,8 +309,8 @@ def choose_program(
     """The chunk's program (``PROGRAMS``) for ``placement``'s population of ``precision``
     learners (``AgentConfig.precision``) on ``backend`` (JAX's default when None):
 
-    * latency-bound where it pays (``latency_bound``: at most ``LATENCY_BOUND_AGENTS`` per
-      GPU);
+    * latency-bound where it pays (``latency_bound``: at most 32 fp32 or 64 bf16 agents per
+      GPU, ``latency_bound_agents``);
     * steady for a larger population sharded over several GPUs. XLA's GPU compile (jax
       0.11.2, its default partitioner Shardy) puts 20 all-gathers into the general
       program's loop, all in the conditional of TD3's delayed actor step; the steady loop
@@ -303,7 +328,7 @@ def choose_program(
       large for the steady program's memory, so that the largest population that fits
       stays as large."""
     backend = jax.default_backend() if backend is None else backend
-    if latency_bound(placement, backend):
+    if latency_bound(placement, backend, precision):
         return "latency-bound"
     if backend != "gpu" or placement is None:
         return "general"

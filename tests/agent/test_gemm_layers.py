@@ -175,13 +175,16 @@ def test_gpus_get_the_layout_and_cpus_the_modules():
     assert network_layout("cpu") == networks.MODULES
 
 
-def test_every_gpu_program_but_the_latency_bound_one_sums_its_heads():
+def test_gpu_programs_sum_their_heads_but_the_smallest_latency_bound_ones():
     from advisor_jax.training import program
 
+    small, large = program.LATENCY_BOUND_AGENTS, program.LATENCY_BOUND_BF16_AGENTS
     for name in program.PROGRAMS:
         for precision in ("fp32", "bf16"):
-            layout = program.program_layout(name, precision, "gpu", agents_per_device=64)
-            assert layout.head_sums == (name != "latency-bound"), (name, precision)
+            for agents in (1, small, large, None):
+                layout = program.program_layout(name, precision, "gpu", agents_per_device=agents)
+                unsummed = name == "latency-bound" and (agents is None or agents <= small)
+                assert layout.head_sums == (not unsummed), (name, precision, agents)
             assert not program.program_layout(name, precision, "cpu").head_sums
 
 

@@ -21,7 +21,12 @@ from advisor_jax.agent.config import parse_agent
 from advisor_jax.training import program
 from advisor_jax.training.devices import Placement, place
 from advisor_jax.training.population import agent_keys
-from advisor_jax.training.program import LATENCY_BOUND_AGENTS, latency_bound, population_functions
+from advisor_jax.training.program import (
+    LATENCY_BOUND_AGENTS,
+    LATENCY_BOUND_BF16_AGENTS,
+    latency_bound,
+    population_functions,
+)
 from advisor_jax.training.train import steady_at
 from tests.training.conftest import GOOD, TINY, _population, primitive_names
 
@@ -86,6 +91,18 @@ def test_only_small_populations_on_gpus_are_latency_bound(n_padded, n_devices, b
 
 
 @pytest.mark.parametrize(
+    ("n_padded", "n_devices", "expected"),
+    [(LATENCY_BOUND_BF16_AGENTS, 1, True), (LATENCY_BOUND_BF16_AGENTS + 1, 1, False),
+     (2 * LATENCY_BOUND_BF16_AGENTS, 2, True), (2 * LATENCY_BOUND_BF16_AGENTS + 2, 2, False)],
+)  # fmt: skip
+def test_bf16_populations_are_latency_bound_up_to_their_own_size(n_padded, n_devices, expected):
+    placement = _placement(n_padded, n_devices)
+    assert LATENCY_BOUND_BF16_AGENTS > LATENCY_BOUND_AGENTS
+    assert latency_bound(placement, "gpu", "bf16") == expected
+    assert not latency_bound(placement, "cpu", "bf16")
+
+
+@pytest.mark.parametrize(
     ("n_padded", "n_devices", "backend", "expected"),
     [(LATENCY_BOUND_AGENTS, 1, "gpu", "latency-bound"),
      (LATENCY_BOUND_AGENTS + 1, 1, "gpu", "general"),  # one GPU, fp32: the general program
@@ -106,12 +123,14 @@ H100 = int(0.75 * 81559 * 2**20)  # what JAX may allocate of an H100 80GB by def
 
 @pytest.mark.parametrize(
     ("n_padded", "precision", "memory_bytes", "expected"),
-    [(64, "bf16", H100, "steady"), (512, "bf16", H100, "steady"),  # measured faster, fits
+    [(LATENCY_BOUND_BF16_AGENTS + 1, "bf16", H100, "steady"),  # measured faster, fits
+     (512, "bf16", H100, "steady"),
      (LATENCY_BOUND_AGENTS, "bf16", H100, "latency-bound"),
+     (LATENCY_BOUND_BF16_AGENTS, "bf16", H100, "latency-bound"),
      (1024, "bf16", H100, "general"),  # would not fit: the general program's largest stays
      (256, "bf16", int(0.75 * 24e9), "general"),  # a 24 GB card: the general one's 16 GiB
      (64, "fp32", H100, "general"),  # fp32: the steady program was slower
-     (64, "bf16", None, "general")],  # memory unknown (these CPU devices report none)
+     (LATENCY_BOUND_BF16_AGENTS + 1, "bf16", None, "general")],  # memory unknown (CPU devices)
 )  # fmt: skip
 def test_one_gpus_bf16_population_gets_the_steady_program_where_its_memory_holds_it(
     n_padded, precision, memory_bytes, expected
@@ -197,7 +216,7 @@ def test_a_chunk_computes_the_general_programs_steps(
 
 def test_population_functions_pick_the_program_from_the_placement(monkeypatch):
     asked = []
-    monkeypatch.setattr(program, "latency_bound", lambda p, b=None: asked.append(p) or True)
+    monkeypatch.setattr(program, "latency_bound", lambda p, b=None, _=None: asked.append(p) or True)
     trainer, _, _ = program.population_functions(TINY, place(3, 1))
     assert asked == [place(3, 1)] and trainer.steady  # as on a GPU
     assert not program.population_functions(TINY, place(3, 1), "general")[0].steady
