@@ -2,7 +2,7 @@
 # The three commands of this page, one GPU each (NVIDIA H200, jax 0.11.2, 2026-11-28), run from the
 # repository root with the wheels of the README's GPU set-up in .whl/ and these trees:
 #   .var  = git archive eaa0e6f advisor_jax envs experiments pyproject.toml
-#   .var2 = .var with program.sums_heads returning True (the layout this commit gives 33-64 bf16 agents per GPU)
+#   .var2 = .var with program.sums_heads returning True (the layout commit 1bdf661 gives 33-64 bf16 agents per GPU)
 # OUT: where the rows are written. Each round is one command: run_round 1, 2 or 3.
 
 run_round() { case $1 in
