@@ -173,13 +173,9 @@ def hold(
 
     online, target = _build(critic), _build(target_critic)
     opt = _adam_states(critic_opt, moments)
-    if in_dtype:
-        online, target = ([*_in(m[:-1], dtype), m[-1]] for m in (online, target))
+    if in_dtype:  # the hidden matrices in ``dtype``, the head as it is
+        online, target = ([*(x.astype(dtype) for x in m[:-1]), m[-1]] for m in (online, target))
     return HeldCritics(online, target, opt, copies(online, dtype), copies(target, dtype))
-
-
-def _in(matrices: list[jax.Array], dtype: Any) -> list[jax.Array]:
-    return [m.astype(dtype) for m in matrices]
 
 
 def soft_update(
