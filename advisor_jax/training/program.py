@@ -48,8 +48,9 @@ LATENCY_BOUND_BF16_AGENTS = 64
 (with the heads summed, ``sums_heads``) ran faster than the steady one, where since the
 draw-first store (``training/draws.py``) the collection's kernels may run beside the update's:
 one H200, jax 0.11.2, each pair in one command: 1.02× and 1.034× (ABBA order) without the head
-sums, which then ran 1.022× (ABBA), at the same peak memory; 128 agents ran 0.99×
-(``results/bench_latency_bound_64/``)."""
+sums, which then ran 1.022× (ABBA), at the same peak memory; with the sums, 40 / 48 / 56
+agents ran 1.08× / 1.06× / 1.05×, and 64 seeds trained every episode as the steady program
+did; 128 agents ran 0.99× (``results/bench_latency_bound_64/``)."""
 
 STEADY_BF16_BYTES_PER_AGENT = int(1.25 * 45.84 / 512 * 2**30)
 """What one ``paper``-size bf16 agent is given of a GPU's memory when the steady program is
