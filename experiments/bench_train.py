@@ -176,19 +176,28 @@ def main() -> None:
         f"{device}, {result['date']}.",
         "",
         *writing.markdown_table(
-            ("precision", "agents", "devices", "agent env-steps/s", "speed-up", "s per chunk"),
+            (
+                "precision",
+                "agents",
+                "devices",
+                "program",
+                "agent env-steps/s",
+                "speed-up",
+                "s per chunk",
+            ),
             [
                 (
                     r["precision"],
                     r["agents"],
                     r["devices"],
+                    r["program"],
                     r["agent_steps_per_s"],
                     r["speedup"],
                     r["seconds_per_chunk"],
                 )
                 for r in rows
             ],
-            formats=("", "", "", ",.0f", ".2f", ".3f"),
+            formats=("", "", "", "", ",.0f", ".2f", ".3f"),
             align="r",
         ),
         "",

@@ -38,7 +38,8 @@ def full_step(
 ) -> dict:
     """Agent env-steps/s of ``n`` agents of ``agent`` at ``preset_name`` on ``devices``
     devices, the learner at ``precision``: best of ``repeats`` chunks of ``chunk`` steps
-    after a warm-up (compile and the steps before the buffer holds a batch)."""
+    after a warm-up (compile and the steps before the buffer holds a batch). The row names
+    the program that ran (``chunk_program`` "auto": the one training picks)."""
     cfg, hp = preset(preset_name, agent, precision=precision)
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=chunk, episodes=100_000, motion=motion)
@@ -67,6 +68,7 @@ def full_step(
         agents=n,
         devices=devices,
         precision=precision,
+        program=program.resolve_program(chunk_program, placement, precision),
         agent_steps_per_s=n * chunk * cfg.envs_per_agent / best,
         seconds_per_chunk=best,
         warmup_s=warmup,

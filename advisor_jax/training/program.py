@@ -340,6 +340,18 @@ def choose_program(
     return "general"
 
 
+def resolve_program(
+    program: str | None, placement: Placement | None, precision: str = "fp32"
+) -> str:
+    """The program that runs for a request of ``program`` (None or "auto": ``choose_program``'s
+    pick for ``placement`` and ``precision``); a name not in ``PROGRAMS`` is refused."""
+    if program in (None, "auto"):
+        program = choose_program(placement, precision=precision)
+    if program not in PROGRAMS:
+        raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
+    return program
+
+
 def population_functions(
     cfg: TrainConfig, placement: Placement | None = None, program: str | None = None
 ):
@@ -353,10 +365,7 @@ def population_functions(
     must then be padded to ``placement.n_padded`` agents. Each call builds new jitted
     functions (jit compiles on their first call); callers that train several populations
     of one config keep and reuse them."""
-    if program in (None, "auto"):
-        program = choose_program(placement, precision=cfg.agent.precision)
-    if program not in PROGRAMS:
-        raise ValueError(f"program {program!r}: not one of {PROGRAMS}")
+    program = resolve_program(program, placement, cfg.agent.precision)
     overlap = program == "latency-bound"
     per_device = None if placement is None else placement.n_padded // placement.n_devices
     layout = program_layout(program, cfg.agent.precision, agents_per_device=per_device)

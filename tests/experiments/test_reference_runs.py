@@ -74,6 +74,10 @@ def test_the_report_records_its_command(tmp_path, monkeypatch):
     argv = ["--preset", "quick", "--agents", "1", "--chunk", "2", "--repeats", "1", "--out"]
     monkeypatch.setattr(sys, "argv", ["bench_train.py", *argv, str(tmp_path)])
     bench_train.main()
-    command = json.loads((tmp_path / "bench_train.json").read_text())["command"]
+    record = json.loads((tmp_path / "bench_train.json").read_text())
+    command = record["command"]
     assert command == f"python experiments/bench_train.py {' '.join(argv)} {tmp_path}"
     assert f"Command: `{command}`" in (tmp_path / "bench_train.md").read_text()
+    # --program auto (the default) is recorded as asked, each row as the program that ran
+    assert record["program"] == "auto" and record["rows"][0]["program"] == "general"
+    assert "| general |" in (tmp_path / "bench_train.md").read_text()

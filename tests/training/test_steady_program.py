@@ -118,6 +118,18 @@ def test_the_program_is_chosen_from_the_population_and_its_devices(
     assert program.choose_program(_placement(n_padded, n_devices), backend) == expected
 
 
+def test_a_request_resolves_to_the_program_that_runs():
+    placement = _placement(48, 1)
+    for name in program.PROGRAMS:  # named: as asked, whatever the population
+        assert program.resolve_program(name, placement, "bf16") == name
+    for request in ("auto", None):  # auto: choose_program's pick on JAX's default backend
+        assert program.resolve_program(request, placement, "bf16") == program.choose_program(
+            placement, precision="bf16"
+        )
+    with pytest.raises(ValueError, match="program 'fast': not one of"):
+        program.resolve_program("fast", placement)
+
+
 H100 = int(0.75 * 81559 * 2**20)  # what JAX may allocate of an H100 80GB by default
 
 
