@@ -49,7 +49,7 @@ from advisor_jax.bench.learner_loop import (
 from advisor_jax.contract import spec
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import place
-from advisor_jax.training.program import PROGRAMS, choose_program, network_layout
+from advisor_jax.training.program import PROGRAMS, network_layout, resolve_program
 
 PRECISION_LABELS = {
     "fp32": "fp32 (JAX's default matmul precision)",
@@ -216,9 +216,7 @@ def main() -> None:
     cfg = parse_agent(args.agent, **(SMALL if args.small else {}))
     programs = {}  # (precision, agents) -> the program timed
     for precision, n_agents in itertools.product(args.precision, args.agents):
-        program = args.program
-        if program == "auto":
-            program = choose_program(place(n_agents, 1), precision=precision)
+        program = resolve_program(args.program, place(n_agents, 1), precision)
         try:
             programs[precision, n_agents] = require_whole_blocks(cfg, args.updates, program)
         except ValueError as e:

@@ -51,7 +51,7 @@ from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, k
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import PROGRAMS, choose_program, population_functions
+from advisor_jax.training.program import PROGRAMS, population_functions, resolve_program
 
 # Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
 PARTS = (
@@ -113,8 +113,7 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1, program="
     start), placed as training places it (padded and sharded on the agent axis); ``program``:
     the chunk's (``program.PROGRAMS``; "auto": training's choice for the placement)."""
     placement = place(n_agents, devices)
-    if program == "auto":
-        program = choose_program(placement, precision=cfg.agent.precision)
+    program = resolve_program(program, placement, cfg.agent.precision)
     _, init_fn, chunk_fn = population_functions(cfg, placement, program)
     hp, _ = build_population(hp, {}, seeds=list(range(n_agents)))
     hp = put(hp, placement)

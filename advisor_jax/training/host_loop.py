@@ -82,7 +82,7 @@ from advisor_jax.training.population import (
     check_seed,
     eval_key,
 )
-from advisor_jax.training.program import choose_program, population_functions
+from advisor_jax.training.program import population_functions, resolve_program
 
 
 def run_training(
@@ -156,8 +156,7 @@ def run_training(
     check_baseline_hparams(baseline, cfg.episodes, hp, grid, cfg.agent.name)
     placement = place(len(agents), devices)
     if program is None:  # not compiled yet
-        if chunk_program in (None, "auto"):
-            chunk_program = choose_program(placement, precision=cfg.agent.precision)
+        chunk_program = resolve_program(chunk_program, placement, cfg.agent.precision)
         program = population_functions(cfg, placement, chunk_program)
         meta = {**(meta or {}), "program": chunk_program}
     limits.check_steps(program[0].max_steps, cfg.chunk_steps)
