@@ -44,6 +44,7 @@ def full_step(
     # Enough episodes that nobody finishes during the benchmark; warm-up past learning start.
     cfg = dataclasses.replace(cfg, chunk_steps=chunk, episodes=100_000, motion=motion)
     placement = place(n, devices)
+    chunk_program = program.resolve_program(chunk_program, placement, precision)
     _, init_fn, chunk_fn = program.population_functions(cfg, placement, chunk_program)
     hp, _ = build_population(hp, {}, seeds=list(range(n)))
     hp = put(hp, placement)
@@ -68,7 +69,7 @@ def full_step(
         agents=n,
         devices=devices,
         precision=precision,
-        program=program.resolve_program(chunk_program, placement, precision),
+        program=chunk_program,
         agent_steps_per_s=n * chunk * cfg.envs_per_agent / best,
         seconds_per_chunk=best,
         warmup_s=warmup,
