@@ -51,7 +51,12 @@ from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, k
 from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import PROGRAMS, population_functions, resolve_program
+from advisor_jax.training.program import (
+    PROGRAMS,
+    WHOLE_LOOPS,
+    population_functions,
+    resolve_program,
+)
 
 # Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
 PARTS = (
@@ -163,6 +168,8 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1, program="
         agents=n_agents,
         devices=devices,
         program=program,
+        # WHOLE_LOOPS as this process has it (a profile may edit it to see the loop's kernels)
+        whole_loop_graph="WHILE" in WHOLE_LOOPS["xla_gpu_enable_command_buffer"].split(","),
         steps=steps,
         agent_steps_per_s=n_agents * steps * cfg.envs_per_agent / untraced,
         wall_us_per_step=1e6 * wall / steps,
@@ -209,7 +216,8 @@ def _program_lines(r: dict) -> list[str]:
     """The chunk's program; under the latency-bound one on a GPU, that its kernels are hidden."""
     program = r.get("program", "auto")
     line = f"The chunk's program: {program}."
-    if program == "latency-bound" and r["event_source"].startswith("device"):
+    whole_loops = r.get("whole_loop_graph", True)  # rows written before the field: it held
+    if program == "latency-bound" and whole_loops and r["event_source"].startswith("device"):
         line += (
             " Its loop runs as one CUDA graph: the trace holds the graph's launches, not the"
             " kernels inside, so the tables below miss most of the step. `--program steady`"

@@ -86,9 +86,12 @@ def test_devices_that_run_at_once_are_told_from_devices_that_take_turns():
 
 
 def test_the_report_says_when_a_whole_loop_graph_hides_the_kernels():
-    def lines(program, source):
-        return " ".join(profile_train._program_lines(dict(program=program, event_source=source)))
+    def lines(program, source, whole_loop_graph=True):
+        row = dict(program=program, event_source=source, whole_loop_graph=whole_loop_graph)
+        return " ".join(profile_train._program_lines(row))
 
     assert "The chunk's program: general." == lines("general", "device").strip()
     assert "not the kernels inside" in lines("latency-bound", "device")
     assert "not the kernels inside" not in lines("latency-bound", "host")  # no GPU: nothing hidden
+    # a profile that took WHILE out of program.WHOLE_LOOPS traced the loop's kernels
+    assert "not the kernels inside" not in lines("latency-bound", "device", False)
