@@ -188,6 +188,18 @@ def reference_program_argv(tree: Path, program: str) -> list[str]:
     return []
 
 
+def ceiling_words(ceilings: dict[str, float], chain: int, size: int, copy_gbs: float) -> str:
+    """The report's sentence on the ceilings measured (``ceilings``: TFLOP/s by precision);
+    it names fp32's matmul precision only where an fp32 ceiling was measured."""
+    fp32 = "fp32 at JAX's default precision; " if "fp32" in ceilings else ""
+    return (
+        "Ceilings measured in the same process: "
+        + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
+        + f" ({fp32}{chain} dependent {size}² products per call, best of 5), device copy "
+        f"{copy_gbs:.0f} GB/s."
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -300,10 +312,7 @@ def main() -> None:
         f"{cfg.critic_state_hidden}+{cfg.critic_hidden}, d = {cfg.delay}; {args.updates} "
         "updates per jitted call (replay sampling + critic step + delayed actor step).",
         "",
-        f"Device: {device}, {result['date']}. Ceilings measured in the same process: "
-        + ", ".join(f"{p} matmul {c:.1f} TFLOP/s" for p, c in ceilings.items())
-        + f" (fp32 at JAX's default precision; {chain} dependent {size}² products per call, "
-        f"best of 5), device copy {copy_gbs:.0f} GB/s.",
+        f"Device: {device}, {result['date']}. {ceiling_words(ceilings, chain, size, copy_gbs)}",
         "",
         *table,
         "",

@@ -107,3 +107,16 @@ def test_a_block_program_refuses_an_update_count_it_would_not_time(monkeypatch, 
             load_script(script).main()
         assert exit_.value.code == 2
         assert "d = 4" in capsys.readouterr().err
+
+
+def test_the_ceilings_sentence_names_fp32_precision_only_where_fp32_was_measured():
+    from tests.experiments.scripts import load_script
+
+    words = load_script("bench_learner").ceiling_words
+    bf16 = words({"bf16": 703.51}, 20, 8192, 2578.54)
+    assert bf16 == (
+        "Ceilings measured in the same process: bf16 matmul 703.5 TFLOP/s (20 dependent 8192² "
+        "products per call, best of 5), device copy 2579 GB/s."
+    )
+    both = words({"bf16": 713.8, "fp32": 353.2}, 20, 8192, 2618.0)
+    assert "fp32 matmul 353.2 TFLOP/s (fp32 at JAX's default precision; 20 dependent" in both
