@@ -62,9 +62,10 @@ def report(hlo: str, min_copy_bytes: int, listing: bool, top: int = 3) -> list[s
         copies = hlo_scopes.large_copies(comps, body, min_copy_bytes)
         mib = sum(b for _, b in copies) / 2**20
         lines.append(
-            f"{body}: {hlo_scopes.kernels(comps, body)} kernels, {len(joined)} joining the "
-            f"collection and the update, {len(copies)} copies of ≥ {min_copy_bytes // 1024} KiB "
-            f"({mib:.1f} MiB)"
+            f"{body}: {hlo_scopes.kernels(comps, body)} kernels, "
+            f"{hlo_scopes.longest_kernel_chain(comps, body)} on its longest chain of data "
+            f"dependence, {len(joined)} joining the collection and the update, {len(copies)} "
+            f"copies of ≥ {min_copy_bytes // 1024} KiB ({mib:.1f} MiB)"
         )
         if listing:
             lines += [f"  {j.name} {j.shape} (collect ops {j.collect_ops}, update ops "

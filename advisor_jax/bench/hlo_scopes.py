@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 from advisor_jax.bench.trace import HLO_LINE, shape_bytes
 
+NAME = re.compile(r"%([\w.\-]+)")
+KERNEL_OPS = ("fusion", "custom-call", "copy")
 COMPUTATION = re.compile(r"^(?:ENTRY )?%?([\w.\-]+) .*\{\s*$")
 WHILE_BODY = re.compile(r"\bwhile\(.*?body=%?([\w.\-]+)")
 CALLS = re.compile(r"calls=%?([\w.\-]+)")
@@ -89,9 +91,31 @@ def large_copies(comps: dict[str, list[str]], body: str, min_bytes: int) -> list
 
 
 def kernels(comps: dict[str, list[str]], body: str) -> int:
-    """Fusions and library calls of loop ``body``: its kernels, about."""
+    """Fusions, library calls and copies of loop ``body``: its kernels, about."""
     return sum(
-        1
-        for line in comps[body]
-        if (m := HLO_LINE.match(line)) and m.group(3) in ("fusion", "custom-call")
+        1 for line in comps[body] if (m := HLO_LINE.match(line)) and m.group(3) in KERNEL_OPS
     )
+
+
+def operands(line: str, op: str) -> list[str]:
+    """Names of the instructions ``line``'s ``op`` reads (its parenthesised operand list)."""
+    rest, depth = line[line.index(op + "(") + len(op) + 1 :], 0
+    for i, ch in enumerate(rest):
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+        if depth < 0:
+            return NAME.findall(rest[:i])
+    return NAME.findall(rest)
+
+
+def longest_kernel_chain(comps: dict[str, list[str]], body: str) -> int:
+    """Kernels (fusions, library calls, copies) on the longest path of data dependence
+    through loop ``body``: a lower bound on how many of them must run one after another.
+    A GPU's graph of the body may add dependencies through buffers XLA reuses."""
+    depth: dict[str, int] = {}
+    for line in comps[body]:
+        m = HLO_LINE.match(line)
+        if not m:
+            continue
+        before = max((depth.get(o, 0) for o in operands(line, m.group(3))), default=0)
+        depth[m.group(1)] = before + (m.group(3) in KERNEL_OPS)
+    return max(depth.values(), default=0)

@@ -29,7 +29,7 @@ HLO = f"""HloModule chunk
   %joined = (f32[2]{{0}}, f32[608]{{0}}) fusion(%a, %b), kind=kInput, calls=%fused_joined
   %keys = u32[2]{{0}} fusion(%c), kind=kLoop, calls=%fused_keys
   %copy.1 = f32[100000,20]{{1,0}} copy(%buf)
-  %copy.2 = f32[2]{{0}} copy(%x)
+  %copy.2 = u32[2]{{0}} copy(%keys)
   ROOT %out = (f32[2,608]{{1,0}}, f32[608]{{0}}, f32[100000,20]{{1,0}}) tuple(%a, %b, %copy.1)
 }}
 
@@ -43,7 +43,8 @@ ENTRY %main (x: (f32[2,608], f32[608], f32[100000,20])) -> (f32[2,608], f32[608]
 def test_a_fusion_of_the_selector_product_and_adam_joins_the_halves_a_key_fusion_does_not():
     comps = hlo_scopes.computations(HLO)
     assert hlo_scopes.loop_bodies(HLO) == ["body"]
-    assert hlo_scopes.kernels(comps, "body") == 2
+    assert hlo_scopes.kernels(comps, "body") == 4  # two fusions, two copies
+    assert hlo_scopes.longest_kernel_chain(comps, "body") == 2  # keys, then its copy
     joined = hlo_scopes.joined_fusions(comps, "body")
     assert [(j.name, j.collect_ops, j.update_ops) for j in joined] == [("joined", 1, 1)]
 
@@ -65,7 +66,8 @@ def test_the_script_reads_a_saved_text_and_compiles_the_chunk(tmp_path, capsys, 
     with gzip.open(saved, "wt") as f:
         f.write(HLO)
     assert script.report(script.read_hlo(saved), 256 * 1024, listing=True) == [
-        "body: 2 kernels, 1 joining the collection and the update, 1 copies of ≥ 256 KiB (7.6 MiB)",
+        "body: 4 kernels, 2 on its longest chain of data dependence, 1 joining the collection and "
+        "the update, 1 copies of ≥ 256 KiB (7.6 MiB)",
         "  joined (f32[2]{0}, f32[608]{0}) (collect ops 1, update ops 1)",
     ]
     # the chunk as training compiles it on this CPU: its scan is the largest loop body
@@ -75,4 +77,6 @@ def test_the_script_reads_a_saved_text_and_compiles_the_chunk(tmp_path, capsys, 
     (line,) = capsys.readouterr().out.strip().splitlines()
     assert "joining the collection and the update" in line
     kernels = int(line.split(": ")[1].split(" kernels")[0])
+    chain = int(line.split("kernels, ")[1].split(" on its")[0])
     assert kernels > 50  # a whole training step: the env, the advisor, the update
+    assert 0 < chain <= kernels
