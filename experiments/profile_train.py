@@ -49,14 +49,10 @@ from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training import program as chunk_programs
 from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import (
-    PROGRAMS,
-    WHOLE_LOOPS,
-    population_functions,
-    resolve_program,
-)
+from advisor_jax.training.program import PROGRAMS, population_functions, resolve_program
 
 # Parts of a step, tried in order on the JAX op name of the HLO that launched a kernel.
 PARTS = (
@@ -163,13 +159,14 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1, program="
         for lo, hi in zip(edges[:-1], edges[1:], strict=True)
     }  # fmt: skip
     per_step = lambda us: us / steps / n_dev  # noqa: E731
+    # WHOLE_LOOPS as the compile read it (a profile may replace it to see the loop's kernels)
+    whole_loops = "WHILE" in chunk_programs.WHOLE_LOOPS["xla_gpu_enable_command_buffer"].split(",")
     return dict(
         _hlo=hlo,
         agents=n_agents,
         devices=devices,
         program=program,
-        # WHOLE_LOOPS as this process has it (a profile may edit it to see the loop's kernels)
-        whole_loop_graph="WHILE" in WHOLE_LOOPS["xla_gpu_enable_command_buffer"].split(","),
+        whole_loop_graph=whole_loops,
         steps=steps,
         agent_steps_per_s=n_agents * steps * cfg.envs_per_agent / untraced,
         wall_us_per_step=1e6 * wall / steps,

@@ -5,7 +5,8 @@ A step's collection and update read the state the step starts from and nothing o
 (``training/draws.py``), so a GPU could run their kernels side by side. XLA's fusion can
 still put ops of both into one kernel: sibling fusion merges consumers of one operand, and
 the collection and the update read the same parameters. Such a kernel waits for the inputs
-of both, and the two halves of the step then take turns. The named scopes of
+of both halves (whether that sets a step's pace is for a timing to say:
+``results/bench_collect_learn_overlap/``). The named scopes of
 ``train.make_train`` ("collect", "learn") and of the learner ("critic_step", "actor_step")
 label every op's metadata, so a fusion's ops say which halves it holds.
 
