@@ -43,9 +43,13 @@ def compiled_chunk_hlo(preset_name: str, agent: str, n: int, precision: str, pro
     return lowered.compile().as_text()
 
 
+def open_text(path: Path, mode: str):
+    """``path`` opened in text ``mode`` ("r" or "w"), gzip-compressed where it ends in .gz."""
+    return (gzip.open if path.suffix == ".gz" else open)(path, mode + "t")
+
+
 def read_hlo(path: Path) -> str:
-    opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "rt") as f:
+    with open_text(path, "r") as f:
         return f.read()
 
 
@@ -95,8 +99,7 @@ def main() -> None:
             args.preset, args.agent, args.agents, args.precision, args.program, args.chunk
         )
     if args.dump is not None:
-        opener = gzip.open if args.dump.suffix == ".gz" else open
-        with opener(args.dump, "wt") as f:
+        with open_text(args.dump, "w") as f:
             f.write(hlo)
     print("\n".join(report(hlo, args.min_copy_kib * 1024, args.list, args.top)))
 

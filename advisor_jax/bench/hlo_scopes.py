@@ -20,10 +20,10 @@ import re
 from typing import NamedTuple
 
 from advisor_jax.bench.trace import HLO_LINE, shape_bytes
+from advisor_jax.training.collectives import hlo_computations
 
 NAME = re.compile(r"%([\w.\-]+)")
 KERNEL_OPS = ("fusion", "custom-call", "copy")
-COMPUTATION = re.compile(r"^(?:ENTRY )?%?([\w.\-]+) .*\{\s*$")
 WHILE_BODY = re.compile(r"\bwhile\(.*?body=%?([\w.\-]+)")
 CALLS = re.compile(r"calls=%?([\w.\-]+)")
 OP_NAME = re.compile(r'op_name="([^"]*)"')
@@ -37,16 +37,8 @@ UPDATE_STEP = re.compile(r"/(?:critic_step|actor_step)/")
 
 
 def computations(hlo: str) -> dict[str, list[str]]:
-    """HLO computation name → its instruction lines."""
-    out: dict[str, list[str]] = {}
-    lines: list[str] | None = None
-    for line in hlo.splitlines():
-        m = None if line.startswith((" ", "\t")) else COMPUTATION.match(line)
-        if m and "(" in line:
-            lines = out.setdefault(m.group(1), [])
-        elif lines is not None and line.strip() and line.strip() != "}":
-            lines.append(line)
-    return out
+    """HLO computation name → its instruction lines (``collectives.hlo_computations``)."""
+    return {c.name: c.lines for c in hlo_computations(hlo)}
 
 
 def loop_bodies(hlo: str) -> list[str]:

@@ -65,7 +65,8 @@ class _Computation:
     lines: list[str]
 
 
-def _computations(hlo: str) -> list[_Computation]:
+def hlo_computations(hlo: str) -> list[_Computation]:
+    """The module's computations (name, whether ENTRY, instruction lines), in text order."""
     out, current = [], None
     for line in hlo.splitlines():
         if current is None:
@@ -157,7 +158,7 @@ def _source(line: str, tables: dict[str, dict[int, str]]) -> str:
 
 def find_collectives(hlo: str) -> list[Collective]:
     """Every collective of an optimized HLO module's text, in the order of the text."""
-    comps, tables = _computations(hlo), _tables(hlo)
+    comps, tables = hlo_computations(hlo), _tables(hlo)
     calls = {c.name: [n for line in c.lines for n in _called(line)] for c in comps}
     looped: set[str] = set()  # computations reachable from a while's body or condition
     stack = []
