@@ -155,7 +155,7 @@ def sharded_population(tmp_path_factory):
     """masked_wgrad_worker.py's output: 4 learners with the kernel, one update sharded over 2
     forced CPU devices and on one device."""
     worker = Path(__file__).with_name("masked_wgrad_worker.py")
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env = dict(os.environ)  # with the suite's XLA_FLAGS: the worker adds its devices
     path = tmp_path_factory.mktemp("sharded") / "states.npz"
     command = [sys.executable, str(worker), str(path)]
     done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)

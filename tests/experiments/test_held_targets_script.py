@@ -1,4 +1,5 @@
-"""experiments/held_targets.py: the parity check and the chunk's memory, small, on the CPU."""
+"""experiments/held_targets.py: the parity check and the chunk's memory, small, on the CPU.
+Two updates: the first with the actor step and its soft update (delay 4), the second after."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ held_targets = load_script("held_targets")
 
 
 def test_a_small_run_reports_parity_and_the_memory_the_hold_takes(tmp_path):
-    argv = ["--small", "--agents", "2", "--chunk", "8", "--updates", "5", "--precision", "bf16"]
+    argv = ["--small", "--agents", "2", "--chunk", "8", "--updates", "2", "--precision", "bf16"]
     assert held_targets.main([*argv, "--out", str(tmp_path)]) == 0
     (row,) = json.loads((tmp_path / "held_targets.json").read_text())["rows"]
     # Bit for bit under XLA's defaults; the suite's CPU emitters may round one element apart.
@@ -21,7 +22,7 @@ def test_a_small_run_reports_parity_and_the_memory_the_hold_takes(tmp_path):
 
 
 def test_the_held_critics_agree_to_rounding(tmp_path):
-    argv = ["--small", "--agents", "2", "--chunk", "8", "--updates", "5", "--precision", "fp32"]
+    argv = ["--small", "--agents", "2", "--chunk", "8", "--updates", "2", "--precision", "fp32"]
     assert held_targets.main([*argv, "--critics", "--out", str(tmp_path)]) == 0
     (row,) = json.loads((tmp_path / "held_targets.json").read_text())["rows"]
     assert row["max_abs_difference"] < 1e-5  # another summation order at most, not another rule

@@ -20,8 +20,10 @@ RUNS = [tuple(arg.split("=", 1)) for arg in sys.argv[2:] if "=" in arg]
 rest = [arg for arg in sys.argv[2:] if "=" not in arg]
 PROCESS = (int(rest[0]), rest[1]) if rest else None
 os.environ["JAX_PLATFORMS"] = "cpu"
+# The suite's compile flags (tests/conftest.py), which the test passes on, and the devices.
 os.environ["XLA_FLAGS"] = (
-    f"--xla_force_host_platform_device_count={DEVICES} --xla_backend_optimization_level=0"
+    os.environ.get("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    + f" --xla_force_host_platform_device_count={DEVICES}"
 )
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", ".."))
 

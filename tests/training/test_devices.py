@@ -32,7 +32,7 @@ WORKER = Path(__file__).with_name("devices_worker.py")
 def _start(log: Path, devices: int, *runs: tuple[str, Path], process: tuple = ()):
     """Starts devices_worker.py: each (mode, out) of ``runs`` in one process on ``devices``
     (and, with ``process`` = (index, port), as one of two jax.distributed processes)."""
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env = dict(os.environ)  # with the suite's XLA_FLAGS: the worker adds its devices
     argv = [sys.executable, str(WORKER), str(devices), *(f"{m}={out}" for m, out in runs)]
     with log.open("w") as sink:  # a file, not a pipe: a full pipe would block the worker
         return subprocess.Popen([*argv, *map(str, process)], env=env, stdout=sink,
