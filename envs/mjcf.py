@@ -291,6 +291,17 @@ def drive_xml(drive: DriveParams, dt: float, robot_radius: float) -> str:
     )
 
 
+@jax.jit
+def _sensor_pass(m: mjx.Model, d: mjx.Data) -> jax.Array:
+    """MJX's kinematics and sensor pass: ``d``'s sensordata. One jitted function, so that
+    JAX traces MJX's rays once per model and shape, not once per program that holds them
+    (a trace takes about a second on a CPU; XLA inlines the call)."""
+    # MJX maps rays into geom frames with small matmuls; JAX's default precision runs
+    # them in TF32 on recent GPUs (errors of 0.4 mm, 7 mm for the lidar): use full fp32.
+    with jax.default_matmul_precision("highest"):
+        return mjx.sensor_pos(m, mjx.kinematics(m, d)).sensordata
+
+
 class MjxSensors:
     """An arena's model on MJX and its sensor pass, from the pose [3] = qpos.
 
@@ -340,14 +351,8 @@ class MjxSensors:
 
     def readings(self, pose: jax.Array, boxes: jax.Array | None = None) -> jax.Array:
         """Raw rangefinder readings [n_rays] at ``pose`` (m; −1 = no hit within cutoff)."""
-        # MJX maps rays into geom frames with small matmuls; JAX's default precision runs
-        # them in TF32 on recent GPUs (errors of 0.4 mm, 7 mm for the lidar): use full fp32.
-        with jax.default_matmul_precision("highest"):
-            m = self.model_for(boxes)
-            d = self.data.replace(qpos=pose.astype(self.data.qpos.dtype))
-            d = mjx.kinematics(m, d)
-            d = mjx.sensor_pos(m, d)
-        return d.sensordata
+        m = self.model_for(boxes)
+        return _sensor_pass(m, self.data.replace(qpos=pose.astype(self.data.qpos.dtype)))
 
     def proximity(self, pose: jax.Array, boxes: jax.Array | None = None) -> jax.Array:
         """The 16 proximity readings P (m): sonar readings with −1 → max_range, or the

@@ -105,6 +105,23 @@ def test_rays_see_neither_floor_nor_robot():
         np.testing.assert_array_equal(data.sensordata, -1.0)
 
 
+def test_programs_holding_the_sensors_trace_mjx_once(sim, monkeypatch):
+    """MJX's sensor pass is one jitted function (``mjcf._sensor_pass``): a second program
+    that reads the same arena's sensors at the same shapes reuses its trace (about a second
+    on a CPU) and computes the same readings."""
+    traces = []
+    kinematics = mjcf.mjx.kinematics
+    monkeypatch.setattr(mjcf.mjx, "kinematics", lambda m, d: traces.append(1) or kinematics(m, d))
+    env = sim.env("training")
+    poses = jnp.asarray(_free_poses(env, env.layout_boxes(), 3, seed=2))  # a shape of its own
+    layout = jnp.zeros((3, 0, 5))
+    first = jax.jit(jax.vmap(env.sensor_readings))(poses, layout)
+    assert len(traces) == 1
+    second = jax.jit(jax.vmap(lambda p, b: env.sensor_readings(p, b) + 0.0))(poses, layout)
+    assert len(traces) == 1
+    np.testing.assert_array_equal(first, second)
+
+
 @pytest.mark.parametrize("arena", (*FIXED, "procedural"))
 def test_mjcf_file_loads_in_plain_mujoco(sim, arena, tmp_path):
     env = sim.env(arena)
