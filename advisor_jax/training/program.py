@@ -44,25 +44,27 @@ whole-loop graphs (``compiler_options``). Its kernels are too small to fill a GP
 time; larger populations fill it (``results/bench_train_steady/``)."""
 
 LATENCY_BOUND_BF16_AGENTS = 64
-"""``LATENCY_BOUND_AGENTS`` for bf16 learners. At 64 bf16 agents the latency-bound program
-(with the heads summed, ``sums_heads``) ran faster than the steady one, where since the
-draw-first store (``training/draws.py``) the collection's kernels may run beside the update's:
-one H200, jax 0.11.2, each pair in one command: 1.02× and 1.034× (ABBA order) without the head
-sums, which then ran 1.022× (ABBA), at the same peak memory; with the sums, 40 / 48 / 56
-agents ran 1.08× / 1.06× / 1.05×, and 64 seeds trained every episode as the steady program
-did; 128 agents ran 0.99× (``results/bench_latency_bound_64/``)."""
+"""``LATENCY_BOUND_AGENTS`` for bf16 learners: since the draw-first store
+(``training/draws.py``) the collection's kernels may run beside the update's, and at 40-64
+bf16 agents the latency-bound program (heads summed, ``sums_heads``) ran 1.02-1.08× the
+steady one on an H200, 64 seeds training every episode the same; 128 agents ran 0.99×
+(``results/bench_latency_bound_64/``)."""
 
 STEADY_BF16_BYTES_PER_AGENT = int(1.25 * 45.84 / 512 * 2**30)
-"""What one ``paper``-size bf16 agent is given of a GPU's memory when the steady program is
-chosen on one GPU (``steady_fits``): the process's peak at 512 agents on an H100, 45.84 GiB
-(the general program's: 32.44), per agent, with a quarter more as margin
-(``results/bench_train_programs/``)."""
+"""A ``paper``-size bf16 agent's share of a GPU's memory in the steady program on one GPU
+(``steady_fits``): the peak at 512 agents on an H100, 45.84 GiB (the general program's: 32.44),
+per agent, with a quarter more as margin (``results/bench_train_programs/``)."""
 
 CUBLAS_GEMMS = {"xla_gpu_enable_triton_gemm": False}
 """XLA debug options that leave every GEMM to cuBLAS (no Triton GEMM fusions)."""
 
 OVERLAPPING_KERNELS = {"xla_gpu_command_buffer_scheduling_mode": "CONCURRENT"}
 """CUDA graphs built by data dependence: independent kernels may run at the same time."""
+
+SEPARATE_OUTPUTS = {"xla_disable_hlo_passes": "multi_output_fusion"}
+"""XLA's multi-output fusion off (``separates_outputs``). It had put the update's minibatch draw
+into a kernel of the collection's noise (both read the step's key split), so each update
+waited for its step's collection (``results/bench_separate_outputs/``)."""
 
 COMMAND_BUFFER_DEFAULTS = (
     "FUSION", "CUBLAS", "CUBLASLT", "CUSTOM_CALL", "CUDNN", "DYNAMIC_SLICE_FUSION", "CONDITIONAL"
@@ -75,7 +77,11 @@ WHOLE_LOOPS = {"xla_gpu_enable_command_buffer": ",".join((*COMMAND_BUFFER_DEFAUL
 
 
 def compiler_options(
-    precision: str, backend: str | None = None, overlap: bool = False, steady: bool = False
+    precision: str,
+    backend: str | None = None,
+    overlap: bool = False,
+    steady: bool = False,
+    separate: bool = False,
 ) -> dict[str, bool | str] | None:
     """``jax.jit``'s ``compiler_options`` for a program holding a ``precision`` learner
     (``AgentConfig.precision``) on ``backend`` (JAX's default when None); None: XLA's
@@ -95,6 +101,7 @@ def compiler_options(
     * bf16: ``CUBLAS_GEMMS``. Left free, XLA's autotuner hands the bf16 matmuls to Triton
       fusions that ran the critic's large GEMMs far below cuBLAS
       (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``).
+    * ``separate`` (``separates_outputs``): ``SEPARATE_OUTPUTS``.
     * fp32, but for the latency-bound program: ``CUBLAS_GEMMS`` too. XLA's default gave cuBLAS
       every fp32 GEMM until the learner held its target networks built; then the autotuner
       moved one of the target critic's to a Triton fusion, and the 128-agent fp32 learner ran
@@ -111,6 +118,8 @@ def compiler_options(
             options.update(WHOLE_LOOPS)
     if precision == "bf16" or not overlap:
         options.update(CUBLAS_GEMMS)
+    if separate:
+        options.update(SEPARATE_OUTPUTS)
     return options or None
 
 
@@ -139,20 +148,14 @@ def layers_in_gemm(backend: str | None = None) -> bool:
 def network_layout(backend: str | None = None) -> Layout:
     """How the learner's networks are computed on ``backend`` (JAX's default when None):
     ``networks.Layout`` from ``twin_inputs_per_critic`` and ``layers_in_gemm``, and with the
-    GEMM layers the critic's first-layer kernel (``agent/masked_wgrad.py``). One H100, jax
-    0.11.2, against the tree without it in one command: the 128-agent learner 1.03× in bf16
-    and 1.04× in fp32, the 64-agent step 1.03× / 1.04×, the 1-agent bf16 step 1.01×, and the
-    same updates (bit for bit over 9 bf16 updates; ``results/bench_first_layer_kernel/``).
-    A population split over several GPUs runs it too, each device its own agents' kernels
-    (``masked_wgrad.weight_gradient``). A GPU's bf16 learner also keeps Adam's moments in
-    bf16 (``agent/adam.py``), each change measured on an H100 with training unmoved over 16
-    seeds: the first moment (``Layout.bf16_first_moment``), the 128-agent bf16 learner
-    1.035× (``results/bench_bf16_first_moment/``); the second, stochastically rounded
-    (``bf16_second_moment``), 1.018× (two commands) and the 64-agent step 1.020×
-    (``results/bench_bf16_second_moment/``); and the held critics' hidden matrices in bf16
-    only, updated by stochastic rounding (``bf16_critic_weights``): Adam's pass over them
-    reads and writes 14 bytes per parameter instead of 20, with the soft update 18 instead of
-    30."""
+    GEMM layers the critic's first-layer kernel (``agent/masked_wgrad.py``; the 128-agent
+    learner 1.03-1.04×, the same updates: ``results/bench_first_layer_kernel/``), which a
+    population split over several GPUs runs on each device's agents. A GPU's bf16 learner
+    also keeps Adam's first and second moments in bf16 (``agent/adam.py``; 1.035× and
+    1.018×) and the held critics' hidden matrices in bf16 only, updated by stochastic
+    rounding (14 bytes per parameter in Adam's pass instead of 20), each measured on an H100
+    with training unmoved over 16 seeds (``results/bench_bf16_first_moment/``,
+    ``results/bench_bf16_second_moment/``, ``results/bench_bf16_critic_weights/``)."""
     gemm = layers_in_gemm(backend)
     return Layout(twin_inputs_per_critic(backend), gemm, first_layer_kernel=gemm,
                   bf16_first_moment=gemm, bf16_second_moment=gemm,
@@ -170,21 +173,15 @@ agents 0.93× (the compiler wanted 82.5 GiB and rematerialized), peak 48.88 GiB 
 def holds_critics(program: str, precision: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` holds its ``precision`` learners' critics as their GEMM
     layers' matrices (``Layout.held_critics``, ``agent/held_critics.py``): no matrix build in
-    the loop, Adam and the soft update on the matrices. The updates are those of the built
-    matrices: a 16-seed bf16 population trained the same, episode for episode. Where it pays,
-    each measured on one H100 (jax 0.11.2) against the tree before in one command
-    (``results/bench_held_critics/``, ``results/bench_latency_bound_held/``):
-
-    * fp32 learners in the general program: the 128-agent learner 1.04-1.05× and the 64-agent
-      step 1.01× (1.047× more after the gradient norm's row sums);
-    * bf16 learners in the steady program with at most ``HELD_STEADY_BF16_AGENTS`` agents
-      per device (``agents_per_device``; None: unknown, not held);
-    * bf16 learners in the latency-bound program (with their target networks,
-      ``holds_networks``).
-
-    Not measured to pay, so not held: fp32's steady program (slower and more memory than its
-    general one), bf16's general program (which one GPU gives only to populations too large
-    for the steady one), the latency-bound program's fp32 learners."""
+    the loop, Adam and the soft update on the matrices; a 16-seed bf16 population trained the
+    same, episode for episode. Where it paid, each measured on one H100 (jax 0.11.2) against
+    the tree before in one command (``results/bench_held_critics/``,
+    ``results/bench_latency_bound_held/``): fp32 learners in the general program (the
+    128-agent learner 1.04-1.05×), bf16 learners in the steady program with at most
+    ``HELD_STEADY_BF16_AGENTS`` agents per device (``agents_per_device``; None: unknown, not
+    held) and in the latency-bound program (with their targets, ``holds_networks``). Not
+    measured to pay, so not held: fp32's steady and latency-bound programs, bf16's general
+    program (one GPU gives it only to populations too large for the steady one)."""
     if (program, precision) == ("general", "fp32"):
         return True
     if program == "latency-bound":
@@ -226,19 +223,11 @@ def holds_networks(program: str, precision: str = "fp32") -> bool:
     """Whether the chunk's ``program`` (one of ``PROGRAMS``) has its ``precision`` learners
     hold the target networks built (``Learner.hold``; only with ``layers_in_gemm``): once per
     soft update instead of once per critic step, the same updates. Every program but the
-    latency-bound one, which holds them, and then its critics too (``holds_critics``), for bf16
-    learners only. One H100, jax 0.11.2, the full step against the tree before in one command
-    each:
-
-    * every program but the latency-bound one: the 64-agent bf16 step 1.05× (the 128-agent
-      learner 1.04×), fp32 1.00× (``results/bench_held_targets/``);
-    * the latency-bound program's bf16 learners, with their critics: 1.03-1.05× from 4 to 32
-      agents (``results/bench_latency_bound_held/``); 1 and 2 agents too since the held
-      critics' hidden matrices are bf16 only (``Layout.bf16_critic_weights``): 1.09× and
-      1.08× at 1 agent, 1.03× and 1.04× at 2, in two commands
-      (``results/bench_bf16_critic_weights/``), where before they had run 0.92× at 1 agent;
-    * its fp32 learners keep the program unheld: 1.07× at 32 agents in one command, the rest
-      not measured."""
+    latency-bound one, which holds them (and then its critics, ``holds_critics``) for bf16
+    learners only. One H100, jax 0.11.2, the full step against the tree before in one command:
+    the 64-agent bf16 step 1.05× (``results/bench_held_targets/``), the latency-bound bf16
+    step 1.03-1.09× from 1 to 32 agents (``results/bench_latency_bound_held/``,
+    ``results/bench_bf16_critic_weights/``); its fp32 learners ran 1.07× unheld at 32 agents."""
     if program != "latency-bound":
         return True
     return precision == "bf16"
@@ -253,6 +242,15 @@ def stores_free(program: str, agents_per_device: int | None = None) -> bool:
     agent 1.05×, but 2 agents 0.87×. An earlier round agrees at 1 agent: the same store (commit
     9622059) ran 1.11× the store-first order where the store after the update runs 1.05×."""
     return program == "latency-bound" and agents_per_device == 1
+
+
+def separates_outputs(program: str, precision: str, agents_per_device: int | None = None) -> bool:
+    """Whether the chunk's ``program`` compiles without XLA's multi-output fusion
+    (``SEPARATE_OUTPUTS``): the latency-bound program of one bf16 agent per device
+    (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2, in one command:
+    1.14× (4,749 -> 5,421 agent env-steps/s; 5,391 with the draw's key behind a barrier too).
+    Larger populations and fp32 learners, not measured, keep XLA's fusion."""
+    return program == "latency-bound" and precision == "bf16" and agents_per_device == 1
 
 
 PROGRAMS = ("general", "steady", "latency-bound")
@@ -384,7 +382,9 @@ def population_functions(
         trainer, chunk = baseline.trainer, baseline.population_chunk(n_real, AXIS)
     init = jax.vmap(trainer.init)
     # A baseline (no steady program) still overlaps its kernels when latency-bound.
-    options = compiler_options(cfg.agent.precision, overlap=overlap, steady=trainer.steady)
+    separate = separates_outputs(program, cfg.agent.precision, per_device)
+    options = compiler_options(cfg.agent.precision, overlap=overlap, steady=trainer.steady,
+                               separate=separate)  # fmt: skip
     if placement is None or placement.mesh is None:
         return trainer, jax.jit(init), jax.jit(chunk, donate_argnums=0, compiler_options=options)
     agents, replicated = placement.agents(), placement.replicated()

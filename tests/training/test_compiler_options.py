@@ -17,10 +17,12 @@ import pytest
 
 from advisor_jax.agent.config import HParams
 from advisor_jax.training import program
+from advisor_jax.training.devices import place
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import (
     CUBLAS_GEMMS,
     OVERLAPPING_KERNELS,
+    SEPARATE_OUTPUTS,
     WHOLE_LOOPS,
     compiler_options,
 )
@@ -41,6 +43,16 @@ def test_gpu_programs_get_their_options_and_others_none(
     precision, backend, overlap, steady, expected
 ):
     assert compiler_options(precision, backend, overlap, steady) == expected
+    separate = compiler_options(precision, backend, overlap, steady, separate=True)
+    assert separate == (None if expected is None else {**expected, **SEPARATE_OUTPUTS})
+
+
+def test_only_the_one_bf16_agent_latency_bound_program_separates_outputs():
+    assert program.separates_outputs("latency-bound", "bf16", 1)
+    others = [("latency-bound", "bf16", 2), ("latency-bound", "bf16", None),
+              ("latency-bound", "fp32", 1), ("steady", "bf16", 1),
+              ("general", "bf16", 1)]  # fmt: skip
+    assert not any(program.separates_outputs(*args) for args in others)
 
 
 def test_whole_loop_graphs_keep_what_xla_records_by_default():
@@ -65,16 +77,20 @@ def test_the_gpu_options_are_compile_options_xla_knows():
 def test_the_training_chunk_compiles_with_its_learners_options(monkeypatch):
     asked = []
 
-    def options(precision, backend=None, overlap=False, steady=False):  # XLA rejects the
-        asked.append((precision, overlap, steady))  # name: proof the chunk got it
-        return {"xla_no_such_option_for_this_test": True}
+    def options(precision, backend=None, overlap=False, steady=False, separate=False):
+        asked.append((precision, overlap, steady, separate))  # XLA rejects the name below:
+        return {"xla_no_such_option_for_this_test": True}  # proof the chunk got it
 
     monkeypatch.setattr(program, "compiler_options", options)
     cfg = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
     for name in ("general", "steady"):  # XLA's scheduling: no overlapping kernels
         program.population_functions(cfg, program=name)
+    for agents in (2, 1):  # one agent per device: its outputs separate
+        program.population_functions(cfg, place(agents, 1), "latency-bound")
     _, init_fn, chunk_fn = program.population_functions(cfg, program="latency-bound")
-    assert asked == [("bf16", False, False), ("bf16", False, True), ("bf16", True, True)]
+    assert asked == [("bf16", False, False, False), ("bf16", False, True, False),
+                     ("bf16", True, True, False), ("bf16", True, True, True),
+                     ("bf16", True, True, False)]  # fmt: skip
     hp, _ = build_population(HParams(), {}, seeds=[0])
     state = init_fn(agent_keys([0]))  # init keeps XLA's defaults
     with pytest.raises(Exception, match="No such compile option"):
