@@ -6,7 +6,9 @@ population_functions``: the program, layout and XLA options training picks) on t
 platform, or reads a saved optimized HLO text (``--hlo``, plain or gzip), and prints for each
 loop body: its kernels, the fusions holding ops of both the collection's forward passes and
 an update step (each such kernel makes the two halves of a step wait for each other), and the
-copies of arrays of at least ``--min-copy-kib``. GPU and CPU compiles differ; a GPU answer
+copies of arrays of at least ``--min-copy-kib``; with ``--list`` also the joining fusions and
+the longest chain of data dependence as runs of one half of a step (a collection run before a
+draw or an update: that update waits for the collection). GPU and CPU compiles differ; a GPU answer
 needs a GPU:
 
     python experiments/hlo_fusion_scopes.py --preset paper --agents 1 --precision bf16
@@ -74,6 +76,8 @@ def report(hlo: str, min_copy_bytes: int, listing: bool, top: int = 3) -> list[s
         if listing:
             lines += [f"  {j.name} {j.shape} (collect ops {j.collect_ops}, update ops "
                       f"{j.update_ops})" for j in joined]  # fmt: skip
+            runs = hlo_scopes.chain_by_half(comps, body)
+            lines.append("  longest chain by half: " + ", ".join(f"{h} {n}" for h, n in runs))
     return lines
 
 
@@ -89,7 +93,8 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=100, help="env steps per chunk")
     parser.add_argument("--min-copy-kib", type=int, default=256)
     parser.add_argument("--top", type=int, default=3, help="loop bodies to report")
-    parser.add_argument("--list", action="store_true", help="list the joining fusions")
+    parser.add_argument("--list", action="store_true",
+                        help="list the joining fusions and the longest chain by half")  # fmt: skip
     parser.add_argument("--dump", type=Path, help="also write the HLO text here (.gz: gzip)")
     args = parser.parse_args()
     if args.hlo is not None:

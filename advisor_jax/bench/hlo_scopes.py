@@ -100,15 +100,63 @@ def operands(line: str, op: str) -> list[str]:
     return NAME.findall(rest)
 
 
-def longest_kernel_chain(comps: dict[str, list[str]], body: str) -> int:
-    """Kernels (fusions, library calls, copies) on the longest path of data dependence
-    through loop ``body``: a lower bound on how many of them must run one after another.
-    A GPU's graph of the body may add dependencies through buffers XLA reuses."""
+def kernel_chain(comps: dict[str, list[str]], body: str) -> list[str]:
+    """The kernels (fusions, library calls, copies) on the longest path of data dependence
+    through loop ``body``, in order: a lower bound on how many of them must run one after
+    another. A GPU's graph of the body may add dependencies through buffers XLA reuses (the
+    1-agent chunk's did not lengthen it: ``results/bench_separate_outputs/``)."""
     depth: dict[str, int] = {}
+    before: dict[str, tuple[str | None, bool]] = {}
     for line in comps[body]:
         m = HLO_LINE.match(line)
         if not m:
             continue
-        before = max((depth.get(o, 0) for o in operands(line, m.group(3))), default=0)
-        depth[m.group(1)] = before + (m.group(3) in KERNEL_OPS)
-    return max(depth.values(), default=0)
+        reads = [o for o in operands(line, m.group(3)) if o in depth]
+        last = max(reads, key=depth.__getitem__, default=None)
+        is_kernel = m.group(3) in KERNEL_OPS
+        depth[m.group(1)] = (depth[last] if last else 0) + is_kernel
+        before[m.group(1)] = (last, is_kernel)
+    chain, name = [], max(depth, key=depth.__getitem__, default=None)
+    while name is not None:
+        last, is_kernel = before[name]
+        if is_kernel:
+            chain.append(name)
+        name = last
+    return chain[::-1]
+
+
+def longest_kernel_chain(comps: dict[str, list[str]], body: str) -> int:
+    """How many kernels ``kernel_chain`` holds."""
+    return len(kernel_chain(comps, body))
+
+
+def half(op_name: str) -> str:
+    """Which part of a step an op's named scope puts it in: "update" (a learner update step),
+    "draw" (the minibatch's sampling), "collect" or "other"."""
+    if UPDATE_STEP.search(op_name):
+        return "update"
+    if "/replay_sample/" in op_name:
+        return "draw"
+    return "collect" if "/collect/" in op_name else "other"
+
+
+def kernel_op_name(comps: dict[str, list[str]], line: str) -> str:
+    """A kernel's op name: its own metadata's, else (a fusion without) its fused root's."""
+    own = op_names([line])
+    if not own and (calls := CALLS.search(line)):
+        own = op_names(comps.get(calls.group(1), []))[-1:]
+    return own[0] if own else ""
+
+
+def chain_by_half(comps: dict[str, list[str]], body: str) -> list[tuple[str, int]]:
+    """``kernel_chain`` as runs of consecutive kernels of one ``half``: where a step's update
+    waits for its collection, a collection run sits between two update runs."""
+    lines = {m.group(1): line for line in comps[body] if (m := HLO_LINE.match(line))}
+    runs: list[tuple[str, int]] = []
+    for name in kernel_chain(comps, body):
+        part = half(kernel_op_name(comps, lines[name]))
+        if runs and runs[-1][0] == part:
+            runs[-1] = (part, runs[-1][1] + 1)
+        else:
+            runs.append((part, 1))
+    return runs

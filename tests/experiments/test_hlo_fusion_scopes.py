@@ -69,6 +69,7 @@ def test_the_script_reads_a_saved_text_and_compiles_the_chunk(tmp_path, capsys, 
         "body: 4 kernels, 2 on its longest chain of data dependence, 1 joining the collection and "
         "the update, 1 copies of ≥ 256 KiB (7.6 MiB)",
         "  joined (f32[2]{0}, f32[608]{0}) (collect ops 1, update ops 1)",
+        "  longest chain by half: collect 1, other 1",  # the key fusion, then its copy
     ]
     # the chunk as training compiles it on this CPU: its scan is the largest loop body
     argv = ["hlo_fusion_scopes.py", "--agents", "1", "--chunk", "4", "--top", "1"]
