@@ -149,8 +149,8 @@ def kernel_op_name(comps: dict[str, list[str]], line: str) -> str:
 
 
 def chain_by_half(comps: dict[str, list[str]], body: str) -> list[tuple[str, int]]:
-    """``kernel_chain`` as runs of consecutive kernels of one ``half``: where a step's update
-    waits for its collection, a collection run sits between two update runs."""
+    """``kernel_chain`` as runs of consecutive kernels of one ``half``. Where a step's update
+    waits for its collection, a collection run comes right before a draw or an update run."""
     lines = {m.group(1): line for line in comps[body] if (m := HLO_LINE.match(line))}
     runs: list[tuple[str, int]] = []
     for name in kernel_chain(comps, body):
