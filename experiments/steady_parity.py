@@ -7,7 +7,9 @@ float reductions differently, so they cannot agree bit for bit, and Adam turns t
 gradient differences into step-size ones. So each chunk after warm-up is run from one state
 S three ways: the general program, the steady program, and the general program on S with
 every parameter one float32 ulp up. The steady program computes the same steps when it
-differs from the general one by no more than that rounding-size change does.
+differs from the general one by no more than that rounding-size change does. Both programs
+are built as training builds them for ``--agents`` agents on one device (its per-device
+choices: ``program.stores_free``, ``separates_outputs``, held critics).
 
     python experiments/steady_parity.py --agents 4 --chunks 3          # GPU, paper sizes
     python experiments/steady_parity.py --preset quick --chunk 100     # CPU, smoke size
@@ -29,6 +31,7 @@ import numpy as np
 from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training.devices import place
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import population_functions
 
@@ -65,8 +68,9 @@ def compare(args: argparse.Namespace) -> tuple[list[dict], bool]:
     against steady(S) and against general(S one ulp up). Returns (rows, steady built)."""
     cfg, hp = preset(args.preset, args.agent, precision=args.precision)
     cfg = dataclasses.replace(cfg, chunk_steps=args.chunk, episodes=100_000)
-    _, init_fn, general_fn = population_functions(cfg, program="general")
-    trainer, _, steady_fn = population_functions(cfg, program=args.program)
+    placement = place(args.agents, 1)  # training's per-device choices for this population
+    _, init_fn, general_fn = population_functions(cfg, placement, "general")
+    trainer, _, steady_fn = population_functions(cfg, placement, args.program)
     seeds = list(range(args.agents))
     hp, _ = build_population(hp, {}, seeds=seeds)
     state, step, rows = init_fn(agent_keys(seeds)), 0, []
