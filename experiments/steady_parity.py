@@ -11,6 +11,11 @@ differs from the general one by no more than that rounding-size change does. Bot
 are built as training builds them for ``--agents`` agents on one device (its per-device
 choices: ``program.stores_free``, ``separates_outputs``, held critics).
 
+Where that program compiles without XLA's multi-output fusion (``program.separates_outputs``,
+on GPUs), a fourth run builds it with the fusion, as before commit 4e52394, and the report
+says whether the two end each chunk bit for bit equal: a fusion choice moves values between
+kernels, not the operations that compute them.
+
     python experiments/steady_parity.py --agents 4 --chunks 3          # GPU, paper sizes
     python experiments/steady_parity.py --preset quick --chunk 100     # CPU, smoke size
 
@@ -23,6 +28,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
+from unittest import mock
 
 import jax
 import jax.numpy as jnp
@@ -31,9 +37,10 @@ import numpy as np
 from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
+from advisor_jax.training import program
 from advisor_jax.training.devices import place
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import population_functions
+from advisor_jax.training.program import population_functions, separates_outputs
 
 
 def relative_difference(a, b) -> float:
@@ -59,6 +66,25 @@ def one_ulp_up(state):
     return state.replace(learner=learner)
 
 
+def bits_equal(a, b) -> bool:
+    """Whether two trees hold the same bits in every leaf (NaN where the other has NaN)."""
+    return all(
+        np.array_equal(np.asarray(x), np.asarray(y), equal_nan=np.asarray(x).dtype.kind == "f")
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
+
+
+def fused_program(cfg, placement, name: str):
+    """The chunk function of ``name`` built with XLA's multi-output fusion, where training
+    builds it without (``separates_outputs``, GPUs only); None elsewhere."""
+    per_device = placement.n_padded // placement.n_devices
+    if jax.default_backend() != "gpu" or not separates_outputs(name, cfg.agent.precision,
+                                                               per_device):  # fmt: skip
+        return None
+    with mock.patch.object(program, "SEPARATE_OUTPUTS", {}):  # the options as before 4e52394
+        return population_functions(cfg, placement, name)[2]
+
+
 PARTS = ("actor", "critic", "target_critic")
 METRICS = ("loss/critic", "q/mean", "loss/actor")
 
@@ -71,6 +97,7 @@ def compare(args: argparse.Namespace) -> tuple[list[dict], bool]:
     placement = place(args.agents, 1)  # training's per-device choices for this population
     _, init_fn, general_fn = population_functions(cfg, placement, "general")
     trainer, _, steady_fn = population_functions(cfg, placement, args.program)
+    fused_fn = fused_program(cfg, placement, args.program)
     seeds = list(range(args.agents))
     hp, _ = build_population(hp, {}, seeds=seeds)
     state, step, rows = init_fn(agent_keys(seeds)), 0, []
@@ -85,6 +112,9 @@ def compare(args: argparse.Namespace) -> tuple[list[dict], bool]:
                 "one ulp": jax.device_get(general_fn(one_ulp_up(start), hp, jnp.int32(step))),
             }
             row = dict(first_step=step)
+            if fused_fn is not None:
+                fused = jax.device_get(fused_fn(start, hp, jnp.int32(step)))
+                row["steady/bits_equal_fused"] = bits_equal(other["steady"], fused)
             for name, (o_state, o_metrics) in other.items():
                 g, o = general[0], o_state
                 row[f"{name}/counters_equal"] = bool(
@@ -153,6 +183,14 @@ def main() -> int:
         "",
         f"Command: `{command}`",
     ]
+    fused = [r["steady/bits_equal_fused"] for r in rows if "steady/bits_equal_fused" in r]
+    if fused:
+        lines[-2:-2] = [
+            f"Built with XLA's multi-output fusion (as before commit 4e52394), the {args.program} "
+            f"program ended {sum(fused)} of {len(fused)} chunks bit for bit equal to the "
+            "program as training builds it (without, `program.separates_outputs`).",
+            "",
+        ]
     writing.write_markdown(args.out / f"{args.name}.md", lines, echo=True)
     return 0
 
