@@ -19,8 +19,8 @@ from __future__ import annotations
 import re
 from typing import NamedTuple
 
-from advisor_jax.bench.trace import HLO_LINE, shape_bytes
-from advisor_jax.training.collectives import hlo_computations
+from advisor_jax.bench.trace import HLO_LINE
+from advisor_jax.training.collectives import hlo_computations, type_bytes
 
 NAME = re.compile(r"%([\w.\-]+)")
 KERNEL_OPS = ("fusion", "custom-call", "copy")
@@ -78,8 +78,8 @@ def large_copies(comps: dict[str, list[str]], body: str, min_bytes: int) -> list
     out = []
     for line in comps[body]:
         m = HLO_LINE.match(line)
-        if m and m.group(3) == "copy" and shape_bytes(m.group(2)) >= min_bytes:
-            out.append((m.group(2), shape_bytes(m.group(2))))
+        if m and m.group(3) == "copy" and type_bytes(m.group(2)) >= min_bytes:
+            out.append((m.group(2), type_bytes(m.group(2))))
     return out
 
 

@@ -10,6 +10,7 @@ import re
 from pathlib import Path
 
 from advisor_jax.agent import masked_wgrad
+from advisor_jax.training.collectives import type_bytes
 
 KINDS = (
     ("our Pallas kernel", re.compile(masked_wgrad.KERNEL_NAME)),
@@ -82,22 +83,6 @@ def hlo_instructions(hlo: str) -> dict[str, tuple[str, str]]:
     return out
 
 
-ARRAY = re.compile(r"\b(pred|[subf]\d+|bf16)\[([\d,]*)\]")
-BYTES_PER_ELEMENT = {"pred": 1, "bf16": 2}
-
-
-def shape_bytes(shape: str) -> int:
-    """Bytes of the arrays an HLO shape names (``f32[128,2,1008,504]{3,2,1,0}``, or a tuple of
-    them): elements × their size (``s32`` 4, ``bf16`` 2, ``pred`` 1)."""
-    total = 0
-    for dtype, dims in ARRAY.findall(shape):
-        size = BYTES_PER_ELEMENT.get(dtype) or int(dtype[1:]) // 8
-        for d in filter(None, dims.split(",")):
-            size *= int(d)
-        total += size
-    return total
-
-
 def instruction_bytes(hlo: str) -> dict[str, int]:
     """HLO instruction name → the bytes of its operands and its output: what one launch of its
     kernel reads and writes if it touches each operand once (an upper bound where a kernel
@@ -110,7 +95,7 @@ def instruction_bytes(hlo: str) -> dict[str, int]:
             args = line[m.end() : line.find(")", m.end())]
             operands[m.group(1)] = re.findall(r"%([\w.\-]+)", args)
     return {
-        name: shape_bytes(shapes[name]) + sum(shape_bytes(shapes.get(o, "")) for o in args)
+        name: type_bytes(shapes[name]) + sum(type_bytes(shapes.get(o, "")) for o in args)
         for name, args in operands.items()
     }
 

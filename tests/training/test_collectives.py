@@ -143,3 +143,5 @@ def test_find_collectives_places_each_one():
     }
     assert [c.source for c in find_collectives(HLO) if c.op == "all-gather"] == ["jit(f)/gather"]
     assert type_bytes("(bf16[3,2]{1,0}, pred[])") == 13
+    assert type_bytes("(bf16[2,3]{1,0}, f32[4]{0}, pred[])") == 12 + 16 + 1
+    assert type_bytes("s32[5]") == 20
