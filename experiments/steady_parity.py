@@ -186,10 +186,10 @@ def main() -> int:
     fused = [r["steady/bits_equal_fused"] for r in rows if "steady/bits_equal_fused" in r]
     if fused:
         lines[-2:-2] = [
+            "",
             f"Built with XLA's multi-output fusion (as before commit 4e52394), the {args.program} "
             f"program ended {sum(fused)} of {len(fused)} chunks bit for bit equal to the "
             "program as training builds it (without, `program.separates_outputs`).",
-            "",
         ]
     writing.write_markdown(args.out / f"{args.name}.md", lines, echo=True)
     return 0

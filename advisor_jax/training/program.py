@@ -247,9 +247,9 @@ def stores_free(program: str, agents_per_device: int | None = None) -> bool:
 def separates_outputs(program: str, precision: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` compiles without XLA's multi-output fusion
     (``SEPARATE_OUTPUTS``): the latency-bound program of one bf16 agent per device
-    (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2, in one command:
-    1.14× (4,749 -> 5,421 agent env-steps/s; 5,391 with the draw's key behind a barrier too).
-    Larger populations and fp32 learners, not measured, keep XLA's fusion."""
+    (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2: 1.14× (4,749 ->
+    5,421 agent env-steps/s) and, A B A in a second command, 1.13× (4,741 -> 5,370 / 5,385). 64
+    agents ran 0.90×; 2-32 agents and fp32 learners, not measured, keep XLA's fusion."""
     return program == "latency-bound" and precision == "bf16" and agents_per_device == 1
 
 
