@@ -16,8 +16,7 @@ leave open:
   (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
   (``holds_networks``) and whose critics, for fp32 learners in the general program and bf16
   populations in the steady and the latency-bound ones, it holds as the matrices the GEMMs
-  read
-  (``holds_critics``, ``program_layout``), whether a bf16 learner's fp32 output heads are
+  read (``holds_critics``, ``program_layout``), whether a bf16 learner's fp32 output heads are
   products summed per output (``sums_heads``), and the critic's first-layer kernel
   (``agent/masked_wgrad.py``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
@@ -28,6 +27,9 @@ what they were. The measurements behind each choice are in ``results/`` (linked 
 """
 
 from __future__ import annotations
+
+import os
+import re
 
 import jax
 
@@ -101,12 +103,12 @@ def compiler_options(
     * bf16: ``CUBLAS_GEMMS``. Left free, XLA's autotuner hands the bf16 matmuls to Triton
       fusions that ran the critic's large GEMMs far below cuBLAS
       (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``).
-    * ``separate`` (``separates_outputs``): ``SEPARATE_OUTPUTS``.
-    * fp32, but for the latency-bound program: ``CUBLAS_GEMMS`` too. XLA's default gave cuBLAS
-      every fp32 GEMM until the learner held its target networks built; then the autotuner
-      moved one of the target critic's to a Triton fusion, and the 128-agent fp32 learner ran
-      1.03× faster without (``results/bench_first_layer_kernel/``, "fp32 with every GEMM on
-      cuBLAS"). The latency-bound fp32 program, not measured that way, keeps XLA's default.
+    * ``separate`` (``separates_outputs``): ``SEPARATE_OUTPUTS``, after the passes that
+      ``XLA_FLAGS`` disables (a program's list replaces the process's).
+    * fp32, but for the latency-bound program: ``CUBLAS_GEMMS`` too. With its target networks
+      held, the autotuner gave one of the target critic's GEMMs to Triton; the 128-agent fp32
+      learner ran 1.03× faster on cuBLAS (``results/bench_first_layer_kernel/``). The
+      latency-bound fp32 program, not measured that way, keeps XLA's default.
     """
     backend = jax.default_backend() if backend is None else backend
     if backend != "gpu":
@@ -120,17 +122,19 @@ def compiler_options(
         options.update(CUBLAS_GEMMS)
     if separate:
         options.update(SEPARATE_OUTPUTS)
+    if passes := options.get("xla_disable_hlo_passes"):
+        user = re.findall(r"--xla_disable_hlo_passes=(\S+)", os.environ.get("XLA_FLAGS", ""))
+        options["xla_disable_hlo_passes"] = ",".join((*user, passes))
     return options or None
 
 
 def twin_inputs_per_critic(backend: str | None = None) -> bool:
-    """The twin critics' input layout (``networks.apply_critics``): per critic on a GPU,
-    shared otherwise (``backend``: JAX's default when None; other accelerators are not
-    measured), whatever the learner's precision. On GPUs each layer is then one GEMM per
-    critic with no transposing pass (``results/bench_learner_twin_inputs/``,
-    ``results/bench_learner_cublas/``). On CPUs the per-critic GEMMs sum in another order:
-    the gradients change in their last bits and with them fixed-seed trajectories, so CPU
-    runs keep the shared layout and their results."""
+    """The twin critics' input layout (``networks.apply_critics``): per critic on a GPU, shared
+    otherwise (``backend``: JAX's default when None; other accelerators are not measured),
+    whatever the learner's precision. On GPUs each layer is then one GEMM per critic with no
+    transposing pass (``results/bench_learner_twin_inputs/``, ``results/bench_learner_cublas/``).
+    On CPUs the per-critic GEMMs sum in another order, changing fixed-seed trajectories in
+    their last bits, so CPU runs keep the shared layout and their results."""
     backend = jax.default_backend() if backend is None else backend
     return backend == "gpu"
 
@@ -261,11 +265,9 @@ PROGRAMS = ("general", "steady", "latency-bound")
 * ``steady``: past warm-up, blocks of d steps written out, the first with the actor step, no
   conditional in the loop (``train.make_train``'s ``steady``), XLA's scheduling;
 * ``latency-bound``: the steady program compiled with overlapping kernels and whole-loop
-  graphs (``compiler_options``): faster for small populations (``latency_bound_agents``),
-  more memory.
+  graphs (``compiler_options``): faster for small populations (``latency_bound_agents``).
 
-Where a config has no steady program (``make_train``) the steady ones fall back to the
-general program."""
+Where a config has no steady program (``make_train``) the steady ones run the general one."""
 
 
 def latency_bound_agents(precision: str) -> int:
@@ -278,9 +280,8 @@ def latency_bound(
     placement: Placement | None, backend: str | None = None, precision: str = "fp32"
 ) -> bool:
     """Whether ``placement``'s population of ``precision`` learners gets the latency-bound
-    program on ``backend`` (JAX's default when None): at most
-    ``latency_bound_agents(precision)`` agents per GPU. An unknown population (None) does
-    not."""
+    program on ``backend`` (JAX's default when None): at most ``latency_bound_agents(precision)``
+    agents per GPU. An unknown population (None) does not."""
     backend = jax.default_backend() if backend is None else backend
     if backend != "gpu" or placement is None:
         return False

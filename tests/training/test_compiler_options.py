@@ -10,6 +10,9 @@ be compiled with the options of its learner's precision and program.
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +56,35 @@ def test_only_the_one_bf16_agent_latency_bound_program_separates_outputs():
               ("latency-bound", "fp32", 1), ("steady", "bf16", 1),
               ("general", "bf16", 1)]  # fmt: skip
     assert not any(program.separates_outputs(*args) for args in others)
+
+
+def test_separate_outputs_keep_the_passes_xla_flags_disable(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2 "
+                       "--xla_disable_hlo_passes=algsimp,cse")  # fmt: skip
+    options = compiler_options("bf16", "gpu", True, True, separate=True)
+    assert options["xla_disable_hlo_passes"] == "algsimp,cse,multi_output_fusion"
+    monkeypatch.delenv("XLA_FLAGS")
+    assert compiler_options("bf16", "gpu", True, True, separate=True)["xla_disable_hlo_passes"] == (
+        "multi_output_fusion"
+    )
+
+
+PROGRAM_LIST_REPLACES_FLAGS = """
+import jax, jax.numpy as jnp
+f = jax.jit(lambda x: jnp.exp(x) * jnp.sin(x) + 1.0, compiler_options=OPTIONS)
+print(f.lower(jnp.ones(8)).compile().as_text().count("kind=kLoop"))
+"""
+
+
+@pytest.mark.parametrize("options", [None, {"xla_disable_hlo_passes": "multi_output_fusion"}])
+def test_a_programs_disabled_passes_replace_the_process_flags(options):
+    # Why compiler_options prepends XLA_FLAGS' passes: with fusion disabled by the process's
+    # flags a CPU program has a kernel per op (5), unless its own list replaces the flags' (1).
+    env = {**os.environ, "XLA_FLAGS": "--xla_disable_hlo_passes=fusion", "JAX_PLATFORMS": "cpu"}
+    code = PROGRAM_LIST_REPLACES_FLAGS.replace("OPTIONS", repr(options))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert int(out.stdout.split()[-1]) == (5 if options is None else 1)
 
 
 def test_whole_loop_graphs_keep_what_xla_records_by_default():
