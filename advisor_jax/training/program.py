@@ -250,11 +250,11 @@ def stores_free(program: str, agents_per_device: int | None = None) -> bool:
 
 def separates_outputs(program: str, precision: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` compiles without XLA's multi-output fusion
-    (``SEPARATE_OUTPUTS``): the latency-bound program of one bf16 agent per device
-    (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2: 1.14× (4,749 ->
-    5,421 agent env-steps/s) and, A B A in a second command, 1.13× (4,741 -> 5,370 / 5,385). 64
-    agents ran 0.90×; 2-32 agents and fp32 learners, not measured, keep XLA's fusion."""
-    return program == "latency-bound" and precision == "bf16" and agents_per_device == 1
+    (``SEPARATE_OUTPUTS``): the latency-bound program of one or two bf16 agents per device
+    (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2, A B A (B): 1
+    agent 1.13× (4,741 -> 5,370 / 5,385; 1.14× in another command), 2 agents 1.15× (7,252 /
+    7,294 -> 8,334 / 8,388; 1.14× in another); 8 agents 0.95×, 64 agents 0.90×."""
+    return program == "latency-bound" and precision == "bf16" and agents_per_device in (1, 2)
 
 
 PROGRAMS = ("general", "steady", "latency-bound")

@@ -34,7 +34,7 @@ def test_fused_program_only_where_training_separates_outputs(monkeypatch):
 
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     monkeypatch.setattr(program, "compiler_options", spy)
-    assert parity.fused_program(cfg, place(2, 1), "latency-bound") is None  # 2 agents: fused
+    assert parity.fused_program(cfg, place(3, 1), "latency-bound") is None  # 3 agents: fused
     assert parity.fused_program(cfg, place(1, 1), "latency-bound") is not None
     assert seen == [(True, {})]  # built as training builds it, with the fusion left on
     assert program.SEPARATE_OUTPUTS == {"xla_disable_hlo_passes": "multi_output_fusion"}

@@ -50,9 +50,11 @@ def test_gpu_programs_get_their_options_and_others_none(
     assert separate == (None if expected is None else {**expected, **SEPARATE_OUTPUTS})
 
 
-def test_only_the_one_bf16_agent_latency_bound_program_separates_outputs():
+def test_only_the_latency_bound_program_of_one_or_two_bf16_agents_separates_outputs():
     assert program.separates_outputs("latency-bound", "bf16", 1)
-    others = [("latency-bound", "bf16", 2), ("latency-bound", "bf16", None),
+    assert program.separates_outputs("latency-bound", "bf16", 2)
+    others = [("latency-bound", "bf16", 3), ("latency-bound", "bf16", 8),
+              ("latency-bound", "bf16", 64), ("latency-bound", "bf16", None),
               ("latency-bound", "fp32", 1), ("steady", "bf16", 1),
               ("general", "bf16", 1)]  # fmt: skip
     assert not any(program.separates_outputs(*args) for args in others)
@@ -117,7 +119,7 @@ def test_the_training_chunk_compiles_with_its_learners_options(monkeypatch):
     cfg = dataclasses.replace(TINY, agent=dataclasses.replace(TINY.agent, precision="bf16"))
     for name in ("general", "steady"):  # XLA's scheduling: no overlapping kernels
         program.population_functions(cfg, program=name)
-    for agents in (2, 1):  # one agent per device: its outputs separate
+    for agents in (3, 1):  # one (or two) agents per device: its outputs separate
         program.population_functions(cfg, place(agents, 1), "latency-bound")
     _, init_fn, chunk_fn = program.population_functions(cfg, program="latency-bound")
     assert asked == [("bf16", False, False, False), ("bf16", False, True, False),
