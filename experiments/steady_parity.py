@@ -40,7 +40,7 @@ from advisor_jax.fileio import atomic_write_json
 from advisor_jax.training import program
 from advisor_jax.training.devices import place
 from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import population_functions, separates_outputs
+from advisor_jax.training.program import population_functions
 
 
 def relative_difference(a, b) -> float:
@@ -67,19 +67,20 @@ def one_ulp_up(state):
 
 
 def bits_equal(a, b) -> bool:
-    """Whether two trees hold the same bits in every leaf (NaN where the other has NaN)."""
-    return all(
-        np.array_equal(np.asarray(x), np.asarray(y), equal_nan=np.asarray(x).dtype.kind == "f")
-        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
-    )
+    """Whether two trees hold the same bits in every leaf: dtype, shape and bytes."""
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        if x.dtype != y.dtype or x.shape != y.shape or x.tobytes() != y.tobytes():
+            return False
+    return True
 
 
 def fused_program(cfg, placement, name: str):
     """The chunk function of ``name`` built with XLA's multi-output fusion, where training
     builds it without (``separates_outputs``, GPUs only); None elsewhere."""
     per_device = placement.n_padded // placement.n_devices
-    if jax.default_backend() != "gpu" or not separates_outputs(name, cfg.agent.precision,
-                                                               per_device):  # fmt: skip
+    separate = program.separates_outputs(name, cfg.agent.precision, per_device)
+    if jax.default_backend() != "gpu" or not separate:
         return None
     with mock.patch.object(program, "SEPARATE_OUTPUTS", {}):  # the options as before 4e52394
         return population_functions(cfg, placement, name)[2]

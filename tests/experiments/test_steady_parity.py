@@ -14,11 +14,13 @@ from tests.experiments.scripts import load_script
 parity = load_script("steady_parity")
 
 
-def test_bits_equal_tells_one_bit_and_matches_nan():
-    a = {"w": np.array([1.0, np.nan], np.float32), "n": np.array([3], np.int32)}
-    assert parity.bits_equal(a, {"w": np.array([1.0, np.nan], np.float32), "n": np.array([3])})
+def test_bits_equal_tells_one_bit_and_the_sign_of_zero():
+    a = {"w": np.array([1.0, np.nan, 0.0], np.float32), "n": np.array([3], np.int32)}
+    assert parity.bits_equal(a, {"w": a["w"].copy(), "n": np.array([3], np.int32)})
     up = np.nextafter(np.float32(1.0), np.float32(2.0))
-    assert not parity.bits_equal(a, {"w": np.array([up, np.nan], np.float32), "n": a["n"]})
+    assert not parity.bits_equal(a, {"w": np.array([up, np.nan, 0.0], np.float32), "n": a["n"]})
+    assert not parity.bits_equal(a, {"w": np.array([1.0, np.nan, -0.0], np.float32), "n": a["n"]})
+    assert not parity.bits_equal(a, {"w": a["w"], "n": np.array([3], np.int64)})
 
 
 def test_fused_program_only_where_training_separates_outputs(monkeypatch):
