@@ -138,6 +138,8 @@ def _first_critic_layer_backward(residuals, g):
     x, matrix, y = residuals
     (masked,) = _relu_backward(y, g)  # read only by the input's gradient, if anyone wants it
     d_x = jax.lax.dot_general(masked, matrix, (((1,), (1,)), ((), ())))
+    if matrix.dtype == jnp.bfloat16:  # exact products: the kernel recomputes the mask
+        return d_x, masked_wgrad.weight_gradient_from_input(x, matrix, g)
     return d_x, masked_wgrad.weight_gradient(x, y, g)
 
 

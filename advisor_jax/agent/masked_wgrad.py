@@ -17,6 +17,13 @@ Measured on an H100 (``results/bench_first_layer_kernel/``): 0.394 ms per 128-ag
 update, at the device's copy rate, and the learner 1.03× (bf16) / 1.04× (fp32) faster, with
 the same updates.
 
+Half of those bytes are Y, read for its sign alone. In bf16 the products of X's and W's
+entries are exact in fp32, so ``X @ W > 0`` computed again in the kernel, from X's 24 columns
+that it reads anyway and W's tile, is the forward's mask up to the fp32 sum's order (a sign
+can differ only where the pre-activation is within a few fp32 units of 0).
+``weight_gradient_from_input`` takes W for Y and reads dY alone; ``gemm_layers`` uses it for
+bf16 matrices. fp32 layers, whose forward GEMM may round its inputs to TF32 on a GPU, keep Y.
+
 Under ``jax.vmap`` (the population's agents, the twin critics) the kernel runs once over the
 stacked batch, inside a ``custom_partitioning`` that keeps the leading axis's sharding: a
 population sharded along its agents (the outermost vmap, so the stacked axis's major part)
@@ -67,23 +74,28 @@ def _pow2_floor(n: int) -> int:
     return 1 << (n.bit_length() - 1)
 
 
-def _kernel(x_ref, y_ref, g_ref, out_ref, *, rows: int, cols: int, splits: int):
-    n, m = y_ref.shape
+def _kernel(x_ref, y_ref, g_ref, out_ref, *, rows: int, cols: int, splits: int, from_input: bool):
+    n, m = g_ref.shape
     col0 = jnp.minimum(pl.program_id(0) * cols, m - cols)
     first, last = 0, pl.cdiv(n, rows)  # row tiles; with splits, this program's share
     if splits > 1:
         steps = pl.cdiv(last, splits)
         first = pl.program_id(1) * steps
         last = jnp.minimum(first + steps, last)
+    if from_input:  # y_ref holds the layer's matrix: its columns of this tile, read once
+        w = y_ref[:, pl.ds(col0, cols)]
 
     def step(i, acc):
         start = i * rows
         row0 = jnp.minimum(start, n - rows)
         fresh = (row0 + jnp.arange(rows)) >= start  # rows no earlier step summed
         x = jnp.where(fresh[:, None], x_ref[pl.ds(row0, rows), :], 0)
-        y = y_ref[pl.ds(row0, rows), pl.ds(col0, cols)]
         g = g_ref[pl.ds(row0, rows), pl.ds(col0, cols)]
-        masked = jnp.where(y > 0, g, jnp.zeros((), g.dtype))
+        if from_input:  # the forward's pre-activation again, from x's few columns
+            kept = pl_triton.dot(x, w) > 0
+        else:
+            kept = y_ref[pl.ds(row0, rows), pl.ds(col0, cols)] > 0
+        masked = jnp.where(kept, g, jnp.zeros((), g.dtype))
         return acc + pl_triton.dot(x, masked, trans_a=True)
 
     k = x_ref.shape[1]
@@ -114,41 +126,43 @@ def row_splits(batch: int, n: int, m: int) -> int:
 
 
 def kernel(
-    x: jax.Array, y: jax.Array, g: jax.Array, interpret: bool | None = None, splits: int = 1
+    x: jax.Array,
+    y: jax.Array,
+    g: jax.Array,
+    interpret: bool | None = None,
+    splits: int = 1,
+    from_input: bool = False,
 ):
-    """``xᵀ · where(y > 0, g, 0)`` → ``[k, m]`` in ``y``'s dtype (fp32 accumulation), for
-    ``x [n, k]``, ``y`` and ``g`` ``[n, m]``: one Pallas kernel. ``interpret``: run it in
-    Pallas's interpreter (default: off a GPU). ``splits`` (``row_splits``): programs that
-    share each column tile's rows, each writing an fp32 partial sum that one small XLA
-    reduction adds before the rounding to ``y``'s dtype. ``jax.vmap`` batches it into a grid
-    axis of the same kernel, a custom call XLA's partitioner cannot split: batch with
-    ``weight_gradient`` instead."""
-    (n, k), m = x.shape, y.shape[1]
+    """``xᵀ · where(y > 0, g, 0)`` → ``[k, m]`` in ``g``'s dtype (fp32 accumulation), for
+    ``x [n, k]``, ``y`` and ``g`` ``[n, m]``: one Pallas kernel. ``from_input``: ``y`` is the
+    layer's matrix ``[k, m]`` instead, and the kernel takes the mask from ``x @ y > 0``, the
+    forward's pre-activation computed again (``weight_gradient_from_input``). ``interpret``:
+    run it in Pallas's interpreter (default: off a GPU). ``splits`` (``row_splits``):
+    programs that share each column tile's rows, each writing an fp32 partial sum that one
+    small XLA reduction adds before the rounding to ``g``'s dtype. ``jax.vmap`` batches it
+    into a grid axis of the same kernel, a custom call XLA's partitioner cannot split: batch
+    with ``weight_gradient`` instead."""
+    (n, k), m = x.shape, g.shape[1]
     if not fits(n, k, m):
         raise ValueError(f"masked_wgrad: [{n}, {k}] x [{n}, {m}] has a side below {MIN_TILE}")
     if interpret is None:
         interpret = jax.default_backend() != "gpu"
     k_tile = pl.next_power_of_2(k)  # a tile's sides are powers of two: x gets zero columns
-    x = jnp.pad(x.astype(y.dtype), ((0, 0), (0, k_tile - k)))
+    x = jnp.pad(x.astype(g.dtype), ((0, 0), (0, k_tile - k)))
+    if from_input:  # and the matrix zero rows against them
+        y = jnp.pad(y.astype(g.dtype), ((0, k_tile - k), (0, 0)))
     rows, cols = min(ROWS, _pow2_floor(n)), min(COLS, _pow2_floor(m))
     shape = (k_tile, m) if splits == 1 else (splits, k_tile, m)
     out = pl.pallas_call(
-        functools.partial(_kernel, rows=rows, cols=cols, splits=splits),
-        out_shape=jax.ShapeDtypeStruct(shape, y.dtype if splits == 1 else jnp.float32),
+        functools.partial(_kernel, rows=rows, cols=cols, splits=splits, from_input=from_input),
+        out_shape=jax.ShapeDtypeStruct(shape, g.dtype if splits == 1 else jnp.float32),
         grid=(pl.cdiv(m, cols),) if splits == 1 else (pl.cdiv(m, cols), splits),
         interpret=interpret,
         name=KERNEL_NAME,
     )(x, y, g)
     if splits > 1:
-        out = out.sum(axis=0).astype(y.dtype)
+        out = out.sum(axis=0).astype(g.dtype)
     return out[:k]
-
-
-def _kernels(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
-    """``kernel`` over a leading batch axis, ``[b, n, k]`` → ``[b, k, m]``, its rows split as
-    ``row_splits`` gives for this batch."""
-    (b, n, _), m = x.shape, y.shape[-1]
-    return jax.vmap(functools.partial(kernel, splits=row_splits(b, n, m)))(x, y, g)
 
 
 def _agents_only(sharding: NamedSharding, ndim: int) -> NamedSharding:
@@ -157,60 +171,76 @@ def _agents_only(sharding: NamedSharding, ndim: int) -> NamedSharding:
     return NamedSharding(sharding.mesh, PartitionSpec(*leading, *([None] * (ndim - 1))))
 
 
-def _partition(mesh, arg_shapes, result_shape):
-    sharding = _agents_only(arg_shapes[0].sharding, 3)
-    return mesh, _kernels, sharding, (sharding,) * 3
-
-
-def _infer_sharding(mesh, arg_shapes, result_shape):
-    return _agents_only(arg_shapes[0].sharding, 3)
-
-
-@custom_partitioning
-def _split_by_agents(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
-    """``kernel`` over a leading batch axis, ``[b, n, k]`` → ``[b, k, m]``. Over several
-    devices XLA's partitioner gives each device the kernel of its own rows of that axis (its
-    agents), where the kernel's custom call alone would be gathered whole onto every device;
-    on one device it is ``_kernels`` itself."""
-    return _kernels(x, y, g)
-
-
-_split_by_agents.def_partition(
-    _partition,
-    infer_sharding_from_operands=_infer_sharding,
-    sharding_rule="b n k, b n m, b n m -> b k m",
-    need_replication_factors=("n", "k", "m"),
-)
-
-
-def _batched(size: int, in_batched, args):
+def _broadcast(size: int, in_batched, args):
     """``args`` each with a leading axis of ``size``: the unbatched ones broadcast."""
     pairs = zip(args, in_batched, strict=True)
     return [a if batched else jnp.broadcast_to(a, (size, *a.shape)) for a, batched in pairs]
 
 
-@custom_vmap
-def _stacked(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
-    """``_split_by_agents``, whose ``jax.vmap`` merges the new axis into the batch (leading,
-    so the agents stay its major part and its sharding)."""
-    return _split_by_agents(x, y, g)
+def _batched_kernel(from_input: bool):
+    """``kernel`` (with ``from_input``) as a function of one layer whose ``jax.vmap``, once or
+    nested, is one kernel over the stacked batch that a population sharded along its agents
+    splits by device."""
+
+    def kernels(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+        """``kernel`` over a leading batch axis, ``[b, n, k]`` → ``[b, k, m]``, its rows split
+        as ``row_splits`` gives for this batch."""
+        (b, n, _), m = x.shape, g.shape[-1]
+        splits = row_splits(b, n, m)
+        one = functools.partial(kernel, splits=splits, from_input=from_input)
+        return jax.vmap(one)(x, y, g)
+
+    @custom_partitioning
+    def split_by_agents(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+        """``kernels``. Over several devices XLA's partitioner gives each device the kernel of
+        its own rows of the batch axis (its agents), where the kernel's custom call alone would
+        be gathered whole onto every device."""
+        return kernels(x, y, g)
+
+    def partition(mesh, arg_shapes, result_shape):
+        sharding = _agents_only(arg_shapes[0].sharding, 3)
+        return mesh, kernels, sharding, (sharding,) * 3
+
+    def infer_sharding(mesh, arg_shapes, result_shape):
+        return _agents_only(arg_shapes[0].sharding, 3)
+
+    split_by_agents.def_partition(
+        partition,
+        infer_sharding_from_operands=infer_sharding,
+        sharding_rule="b n k, b k m, b n m -> b k m"
+        if from_input
+        else "b n k, b n m, b n m -> b k m",
+        need_replication_factors=("n", "k", "m"),
+    )
+
+    @custom_vmap
+    def stacked(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+        """``split_by_agents``, whose ``jax.vmap`` merges the new axis into the batch (leading,
+        so the agents stay its major part and its sharding)."""
+        return split_by_agents(x, y, g)
+
+    @stacked.def_vmap
+    def stacked_vmap(size, in_batched, x, y, g):
+        x, y, g = _broadcast(size, in_batched, (x, y, g))
+        out = stacked(*(a.reshape(-1, *a.shape[2:]) for a in (x, y, g)))
+        return out.reshape(size, -1, *out.shape[1:]), True
+
+    @custom_vmap
+    def one_layer(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
+        return kernels(x[None], y[None], g[None])[0]
+
+    @one_layer.def_vmap
+    def one_layer_vmap(size, in_batched, x, y, g):
+        return stacked(*_broadcast(size, in_batched, (x, y, g))), True
+
+    return one_layer
 
 
-@_stacked.def_vmap
-def _stacked_vmap(size, in_batched, x, y, g):
-    x, y, g = _batched(size, in_batched, (x, y, g))
-    out = _stacked(*(a.reshape(-1, *a.shape[2:]) for a in (x, y, g)))
-    return out.reshape(size, -1, *out.shape[1:]), True
+weight_gradient = _batched_kernel(from_input=False)
+"""``weight_gradient(x, y, g)``: ``xᵀ · where(y > 0, g, 0)`` (``kernel``), ``y`` the layer's
+output; vmapped, one kernel that a population sharded along its agents splits by device."""
 
-
-@custom_vmap
-def weight_gradient(x: jax.Array, y: jax.Array, g: jax.Array) -> jax.Array:
-    """``xᵀ · where(y > 0, g, 0)`` (``kernel``), whose ``jax.vmap``, once or nested, is one
-    kernel over the stacked batch that a population sharded along its agents splits by device
-    (``_split_by_agents``)."""
-    return _kernels(x[None], y[None], g[None])[0]
-
-
-@weight_gradient.def_vmap
-def _weight_gradient_vmap(size, in_batched, x, y, g):
-    return _stacked(*_batched(size, in_batched, (x, y, g))), True
+weight_gradient_from_input = _batched_kernel(from_input=True)
+"""``weight_gradient_from_input(x, w, g)``: ``xᵀ · where(x @ w > 0, g, 0)``, the mask from the
+layer's input ``x`` and matrix ``w`` (``kernel``'s ``from_input``), so that the kernel reads
+``g`` and not the layer's output; vmapped as ``weight_gradient``."""

@@ -179,3 +179,49 @@ def test_the_bare_kernel_would_be_gathered_onto_every_device(sharded_population)
     # custom call the partitioner gathers whole, the check above would see it.
     gathers = [c for c in sharded_population[0]["plain_collectives"] if c["op"] == "all-gather"]
     assert gathers and all("masked_weight_gradient" in c["source"] for c in gathers)
+
+
+@pytest.mark.parametrize("splits", [1, 3])
+@pytest.mark.parametrize("n, k, m", [(40, 24, 72), (1000, 24, 1008)])
+def test_the_mask_from_the_input_is_the_forward_mask(n, k, m, splits):
+    # bf16 x and matrix: the products are exact, so x @ w > 0 in the kernel is y > 0 of the
+    # forward's output (here XLA's dot), and the gradients agree as the y-reading kernel's do.
+    x, _, g = _inputs(n, k, m, jnp.bfloat16, seed=splits)
+    w = (jax.random.normal(jax.random.key(9), (k, m)) / 4).astype(jnp.bfloat16)
+    y = gemm_layers._hidden(x, w)
+    got = masked_wgrad.kernel(x, w, g, splits=splits, from_input=True)
+    assert got.shape == (k, m) and got.dtype == jnp.bfloat16
+    want = masked_wgrad.kernel(x, y, g, splits=splits)
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    assert float(jnp.mean((y > 0).astype(jnp.float32))) > 0.3  # a mask that masks
+
+
+def test_vmapped_kernels_from_the_input_are_separate_kernels():
+    x, _, g = (a.reshape(3, 2, 40, -1) for a in _inputs(240, 24, 72, jnp.bfloat16))
+    w = (jax.random.normal(jax.random.key(3), (3, 2, 24, 72)) / 4).astype(jnp.bfloat16)
+    got = jax.vmap(jax.vmap(masked_wgrad.weight_gradient_from_input))(x, w, g)
+    mask = jnp.einsum("abnk,abkm->abnm", x, w, preferred_element_type=jnp.float32) > 0
+    want = jnp.einsum(
+        "abnk,abnm->abkm", x.astype(jnp.float32), jnp.where(mask, g, 0).astype(jnp.float32)
+    )
+    np.testing.assert_allclose(got.astype(jnp.float32), want, rtol=2**-7, atol=2e-2)
+
+
+@pytest.mark.parametrize("dtype, used", [(jnp.bfloat16, "from_input"), (jnp.float32, "output")])
+def test_bf16_layers_take_the_mask_from_their_input(monkeypatch, dtype, used):
+    calls = []
+    for name, tag in (("weight_gradient", "output"), ("weight_gradient_from_input", "from_input")):
+        inner = getattr(masked_wgrad, name)
+        monkeypatch.setattr(masked_wgrad, name, lambda *a, f=inner, t=tag: calls.append(t) or f(*a))
+    x, _, _ = _inputs(40, 24, 72, dtype)
+    matrix = (jax.random.normal(jax.random.key(5), (24, 72)) / 5).astype(dtype)
+    cotangent = jax.random.normal(jax.random.key(6), (40, 72)).astype(dtype)
+
+    def loss(layer):
+        return lambda w: jnp.sum((layer(x, w) * cotangent).astype(jnp.float32))
+
+    got = jax.grad(loss(gemm_layers.first_critic_layer))(matrix)
+    want = jax.grad(loss(gemm_layers._hidden))(matrix)
+    assert calls == [used]
+    tol = dict(rtol=2**-7, atol=2e-2) if dtype == jnp.bfloat16 else dict(rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(got.astype(jnp.float32), want.astype(jnp.float32), **tol)
