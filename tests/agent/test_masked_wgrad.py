@@ -130,9 +130,12 @@ def test_the_critic_falls_back_below_the_tiles():
     )
 
 
-def test_a_learner_with_the_kernel_takes_the_same_updates():
+# bf16: the kernel takes its mask from the layer's input (weight_gradient_from_input).
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_a_learner_with_the_kernel_takes_the_same_updates(precision):
     sizes = dict(actor_hidden=(16, 16), critic_state_hidden=24, critic_hidden=(16, 16))
-    cfg = parse_agent("ATD3+AfDP", **{**SMALL, **sizes, "batch_size": 40, "buffer_size": 256})
+    settings = {**SMALL, **sizes, "batch_size": 40, "buffer_size": 256, "precision": precision}
+    cfg = parse_agent("ATD3+AfDP", **settings)
     replay = fill_replay(cfg.buffer_size, jax.random.key(1))
     layouts = {"kernel": networks.Layout(True, True, True), "xla": networks.Layout(True, True)}
     start = make_learner(cfg, layout=layouts["xla"]).init(jax.random.key(0))
