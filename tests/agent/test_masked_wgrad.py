@@ -228,3 +228,32 @@ def test_bf16_layers_take_the_mask_from_their_input(monkeypatch, dtype, used):
     assert calls == [used]
     tol = dict(rtol=2**-7, atol=2e-2) if dtype == jnp.bfloat16 else dict(rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(got.astype(jnp.float32), want.astype(jnp.float32), **tol)
+
+
+def test_a_bf16_learner_updates_bit_for_bit_as_with_the_output_mask(monkeypatch):
+    # The mask from the input is the forward's mask here (exact bf16 products, and the sum's
+    # order at these sizes gives no sign a different side of 0): the learner's updates are
+    # those of the kernel that reads the layer's output, bit for bit.
+    sizes = dict(actor_hidden=(16, 16), critic_state_hidden=24, critic_hidden=(16, 16))
+    settings = {**SMALL, **sizes, "batch_size": 40, "buffer_size": 256, "precision": "bf16"}
+    cfg = parse_agent("ATD3+AfDP", **settings)
+    replay = fill_replay(cfg.buffer_size, jax.random.key(1))
+    layout = networks.Layout(True, True, True)
+    start = make_learner(cfg, layout=layout).init(jax.random.key(0))
+
+    def trained():
+        learner, state = make_learner(cfg, layout=layout), start
+        update = jax.jit(learner.update)
+        for u in range(cfg.delay + 1):
+            keys = jax.random.split(jax.random.key(10 + u))
+            batch = learner.sample(replay, keys[0])
+            state = update(state, batch, keys[1], HParams(), u)[0]
+        return state
+
+    from_input = trained()
+    output_mask = lambda x, w, g: masked_wgrad.weight_gradient(x, gemm_layers._hidden(x, w), g)  # noqa: E731
+    monkeypatch.setattr(masked_wgrad, "weight_gradient_from_input", output_mask)
+    for a, b in zip(jax.tree.leaves(from_input), jax.tree.leaves(trained()), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    moved = jax.tree.leaves(from_input.critic)[0]
+    assert not np.array_equal(np.asarray(moved), np.asarray(jax.tree.leaves(start.critic)[0]))
