@@ -1,7 +1,9 @@
 """Trains a small population's learner with the first-layer kernel, sharded over 2 forced CPU
 devices, and prints what tests/agent/test_masked_wgrad.py checks of it.
 
-    python tests/agent/masked_wgrad_worker.py STATES.npz
+    python tests/agent/masked_wgrad_worker.py STATES.npz [fp32|bf16]
+
+(bf16: the kernel that takes its mask from the layer's input, ``weight_gradient_from_input``.)
 
 Prints one JSON object: ``collectives`` (those of the sharded update's optimized HLO,
 ``collectives.find_collectives``), ``plain_collectives`` (the same with the kernel batched
@@ -12,6 +14,7 @@ XLA's CPU device count is fixed when JAX starts, hence a process of its own.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import sys
@@ -37,7 +40,11 @@ from advisor_jax.training.devices import place  # noqa: E402
 
 AGENTS = 4
 SIZES = dict(actor_hidden=(16, 16), critic_state_hidden=24, critic_hidden=(16, 16))
-CFG = parse_agent("ATD3+AfDP", **{**SMALL, **SIZES, "batch_size": 40, "buffer_size": 256})
+PRECISION = sys.argv[2] if len(sys.argv) > 2 else "fp32"
+CFG = parse_agent("ATD3+AfDP", **{**SMALL, **SIZES, "batch_size": 40, "buffer_size": 256,
+                                  "precision": PRECISION})  # fmt: skip
+KERNEL = "weight_gradient_from_input" if PRECISION == "bf16" else "weight_gradient"
+"""The batched kernel the learner's first layer calls (``gemm_layers``)."""
 
 
 def population_update():
@@ -64,14 +71,15 @@ def main() -> None:
     sharded = jax.jit(update, in_shardings=agents, out_shardings=agents)
     two = sharded(jax.device_put(start, agents), jax.device_put(step_keys, agents))
     hlo = sharded.lower(start, step_keys).compile().as_text()
-    real = masked_wgrad.weight_gradient
-    masked_wgrad.weight_gradient = masked_wgrad.kernel  # the bare call, batched by jax.vmap
+    real = getattr(masked_wgrad, KERNEL)
+    bare = functools.partial(masked_wgrad.kernel, from_input=PRECISION == "bf16")
+    setattr(masked_wgrad, KERNEL, bare)  # the bare call, batched by jax.vmap
     try:
         _, plain = population_update()
         plain_hlo = jax.jit(plain, in_shardings=agents, out_shardings=agents).lower(
             start, step_keys).compile().as_text()  # fmt: skip
     finally:
-        masked_wgrad.weight_gradient = real
+        setattr(masked_wgrad, KERNEL, real)
     leaves = {"start": start, "one": one, "two": two}
     np.savez(sys.argv[1], **{f"{name}/{i}": np.asarray(leaf) for name, tree in leaves.items()
                       for i, leaf in enumerate(jax.tree.leaves(tree))})  # fmt: skip

@@ -153,14 +153,14 @@ def test_a_learner_with_the_kernel_takes_the_same_updates(precision):
     assert_same_training(states["kernel"], states["xla"], start, "learner")
 
 
-@pytest.fixture(scope="module")
-def sharded_population(tmp_path_factory):
+@pytest.fixture(scope="module", params=["fp32", "bf16"])
+def sharded_population(request, tmp_path_factory):
     """masked_wgrad_worker.py's output: 4 learners with the kernel, one update sharded over 2
-    forced CPU devices and on one device."""
+    forced CPU devices and on one device; bf16 with the mask from the layer's input."""
     worker = Path(__file__).with_name("masked_wgrad_worker.py")
     env = dict(os.environ)  # with the suite's XLA_FLAGS: the worker adds its devices
     path = tmp_path_factory.mktemp("sharded") / "states.npz"
-    command = [sys.executable, str(worker), str(path)]
+    command = [sys.executable, str(worker), str(path), request.param]
     done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     out = json.loads(done.stdout.splitlines()[-1])
