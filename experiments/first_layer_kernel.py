@@ -13,7 +13,10 @@ script checks, on the default device, ATD3+AfDP at paper sizes (``--small``: tin
   GEMMs beside them (so a reader sees the kernel ran where intended and nowhere else);
 * **split rows**: the first layer's gradient (random inputs) with the batch rows split as
   1 agent's twin critics split them (``masked_wgrad.row_splits``) against the unsplit
-  kernel: how many entries differ, and by how much.
+  kernel: how many entries differ, and by how much;
+* **mask from the input** (bf16): the kernel that computes the ReLU's mask from the
+  layer's input, which ``gemm_layers`` runs for bf16 matrices, against the kernel that
+  reads it from the layer's output, batched as 1, 32 and 128 layers: how many entries differ.
 
 Both layouts are the GPU's (``program.network_layout("gpu")``) wherever this runs; off a GPU
 the kernel runs in Pallas's interpreter.
@@ -125,6 +128,31 @@ def split_check(precision: str, small: bool = False) -> dict:
     )
 
 
+def from_input_check(precision: str, small: bool = False) -> dict:
+    """bf16: ``masked_wgrad.weight_gradient_from_input`` (the mask ``X @ W > 0`` computed in
+    the kernel) against ``masked_wgrad.weight_gradient`` (the mask read from Y), each vmapped
+    over 1, 32 and 128 layers (1, 16 and 64 agents' twin critics; small: 1 and 4) as
+    training batches them. X normal with its ones column and a zero column, W 0.2 · normal,
+    dY 10⁻³ · normal, and Y = relu(X @ W) from XLA's bf16 GEMM, as the forward computes it.
+    fp32 layers read Y: None."""
+    if precision != "bf16":
+        return dict(from_input_entries_differing=None, from_input_entries=None)
+    n, k, m = (40, 24, 72) if small else (1000, 24, 1008)
+    differing = entries = 0
+    for layers in (1, 4) if small else (1, 32, 128):
+        keys = jax.random.split(jax.random.key(layers), 3)
+        x = jax.random.normal(keys[0], (layers, n, k), jnp.float32)
+        x = x.at[..., k - 2].set(1.0).at[..., k - 1].set(0.0).astype(jnp.bfloat16)
+        w = (0.2 * jax.random.normal(keys[1], (layers, k, m))).astype(jnp.bfloat16)
+        g = (1e-3 * jax.random.normal(keys[2], (layers, n, m))).astype(jnp.bfloat16)
+        y = jax.jit(lambda x, w: jax.nn.relu(jnp.einsum("lnk,lkm->lnm", x, w)))(x, w)
+        from_y = jax.jit(jax.vmap(masked_wgrad.weight_gradient))(x, y, g)
+        from_x = jax.jit(jax.vmap(masked_wgrad.weight_gradient_from_input))(x, w, g)
+        differing += int((from_y.astype(jnp.float32) != from_x.astype(jnp.float32)).sum())
+        entries += from_y.size
+    return dict(from_input_entries_differing=differing, from_input_entries=entries)
+
+
 def custom_calls(hlo: str) -> dict:
     """Custom-call targets of a compiled HLO text, counted; and how many of them launch the
     kernel (none off a GPU, where Pallas interprets it as ordinary operations)."""
@@ -143,17 +171,20 @@ def main(argv=None) -> int:
     for precision in args.precision:
         updates, hlo = update_check(precision, args.agents, args.updates, args.small)
         rows.append(dict(precision=precision, **gradient_check(precision, args.small), **updates,
-                         **custom_calls(hlo), **split_check(precision, args.small)))  # fmt: skip
+                         **custom_calls(hlo), **split_check(precision, args.small),
+                         **from_input_check(precision, args.small)))  # fmt: skip
     table = writing.markdown_table(
         ["precision", "one critic step: difference", "the step's largest change",
          f"{args.updates} updates: difference", "kernel launches", "custom calls",
          "rows split: programs per tile", "entries differing", "largest difference",
-         "gradient's scale"],
+         "gradient's scale", "mask from the input: entries differing"],
         [[r["precision"], f"{r['step_difference']:.3g}", f"{r['step_size']:.3g}",
           f"{r['update_difference']:.3g}", r["kernel_calls"],
           ", ".join(f"{k} × {v}" for k, v in sorted(r["custom_calls"].items())),
           r["splits"], f"{r['split_entries_differing']} of {r['entries']}",
-          f"{r['split_difference']:.3g}", f"{r['gradient_scale']:.3g}"]
+          f"{r['split_difference']:.3g}", f"{r['gradient_scale']:.3g}",
+          "" if r["from_input_entries"] is None
+          else f"{r['from_input_entries_differing']} of {r['from_input_entries']}"]
          for r in rows],
     )  # fmt: skip
     setup = (

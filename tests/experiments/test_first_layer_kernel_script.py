@@ -19,3 +19,9 @@ def test_a_small_run_reports_parity_and_no_kernel_launch_off_a_gpu(tmp_path):
     assert row["splits"] == 2 and row["entries"] == 24 * 72  # the small layer's 2 row tiles
     assert row["split_difference"] <= 1e-5 * row["gradient_scale"]
     assert "| fp32 |" in (tmp_path / "first_layer_kernel.md").read_text()
+
+
+def test_the_mask_from_the_input_changes_no_entry_and_fp32_has_none():
+    row = first_layer_kernel.from_input_check("bf16", small=True)
+    assert row == dict(from_input_entries_differing=0, from_input_entries=5 * 24 * 72)
+    assert first_layer_kernel.from_input_check("fp32")["from_input_entries"] is None
