@@ -29,12 +29,9 @@ off a GPU), and on a GPU at full size too. Writes ``--out``/``bench_wgrad_adam.j
 
 from __future__ import annotations
 
-import argparse
 import functools
-import sys
 import time
 import traceback
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -43,7 +40,6 @@ from jax.experimental.pallas import triton as pl_triton
 
 from advisor_jax.agent import adam
 from advisor_jax.bench import measure, writing
-from advisor_jax.fileio import atomic_write_json
 
 B1, B2, EPS = 0.9, 0.999, 1e-8
 SHAPES = ((1008, 504), (504, 608))
@@ -216,25 +212,14 @@ def report(result: dict, command: str) -> list[str]:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--layers", type=int, default=128, help="matrices per call: agents × twin critics (128)"
-    )
-    parser.add_argument("--out", type=Path, default=Path("results"))
-    args = parser.parse_args(argv)
-    if args.layers < 1:
-        parser.error(f"--layers {args.layers} must be ≥ 1")
+    args = writing.layers_parser(__doc__).parse_args(argv)
     result = dict(**measure.provenance(), layers=args.layers, check_small=check(), rows=[])
     print("check", result["check_small"], flush=True)
     if jax.default_backend() == "gpu":
         result["rows"] = bench(args.layers)
         for k, m in SHAPES:
             result[f"check_{k}x{m}"] = check(4, BATCH, k, m, CONFIGS[0])
-    atomic_write_json(args.out / "bench_wgrad_adam.json", result)
-    command = writing.command_line("experiments/bench_wgrad_adam.py", sys.argv[1:])
-    writing.write_markdown(args.out / "bench_wgrad_adam.md", report(result, command))
+    writing.publish_result(args.out, "bench_wgrad_adam", result, report)
     return result
 
 

@@ -25,19 +25,15 @@ interpreter off a GPU). Writes ``--out``/``probe_mosaic_gemm.json`` and ``.md``.
 
 from __future__ import annotations
 
-import argparse
 import functools
-import sys
 import time
 import traceback
 import types
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
 from advisor_jax.bench import measure, writing
-from advisor_jax.fileio import atomic_write_json
 
 WGRAD_SHAPES = ((1000, 1008, 504), (1000, 504, 608), (1024, 1024, 512), (1024, 512, 640))
 """(batch, matrix rows, matrix columns): the paper's two large critic matrices, then padded."""
@@ -213,23 +209,12 @@ def report(result: dict, command: str) -> list[str]:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--layers", type=int, default=128, help="matrices per call: agents × twin critics (128)"
-    )
-    parser.add_argument("--out", type=Path, default=Path("results"))
-    args = parser.parse_args(argv)
-    if args.layers < 1:
-        parser.error(f"--layers {args.layers} must be ≥ 1")
+    args = writing.layers_parser(__doc__).parse_args(argv)
     result = dict(**measure.provenance(), layers=args.layers, check_small=check(), rows=[])
     print("check", result["check_small"], flush=True)
     if jax.default_backend() == "gpu":
         result["rows"] = bench(args.layers)
-    atomic_write_json(args.out / "probe_mosaic_gemm.json", result)
-    command = writing.command_line("experiments/probe_mosaic_gemm.py", sys.argv[1:])
-    writing.write_markdown(args.out / "probe_mosaic_gemm.md", report(result, command))
+    writing.publish_result(args.out, "probe_mosaic_gemm", result, report)
     return result
 
 

@@ -6,7 +6,8 @@ import argparse
 import os
 import shlex
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import Any
 
 from advisor_jax.fileio import atomic_write_json, atomic_write_text
@@ -89,6 +90,42 @@ def check_parser(doc: str) -> argparse.ArgumentParser:
     parser.add_argument("--small", action="store_true", help="tiny networks (CPU smoke run)")
     parser.add_argument("--out", default=None, help="folder for the .md and .json report")
     return parser
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be ≥ 1")
+    return value
+
+
+def layers_parser(doc: str) -> argparse.ArgumentParser:
+    """The options of a GEMM benchmark over a batch of layers (``experiments/``: ``--layers``,
+    ``--out``), described by ``doc``'s first paragraph."""
+    parser = argparse.ArgumentParser(
+        description=doc.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--layers", type=_positive, default=128,
+                        help="matrices per call: agents × twin critics (128)")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    return parser
+
+
+def publish_result(
+    out: str | os.PathLike,
+    name: str,
+    result: dict,
+    report: Callable[[dict, str], Sequence[str]],
+    argv: Sequence[str] | None = None,
+) -> None:
+    """An experiment's ``result`` as ``out/name.json``, and ``report(result, command)`` as
+    ``out/name.md``, where the command is ``python experiments/name.py`` with ``argv`` (the
+    process's arguments when None)."""
+    argv = sys.argv[1:] if argv is None else argv
+    atomic_write_json(Path(out) / f"{name}.json", result)
+    write_markdown(
+        Path(out) / f"{name}.md", report(result, command_line(f"experiments/{name}.py", argv))
+    )
 
 
 def publish_check(
