@@ -44,11 +44,15 @@ columns) to ``gemm_layers.ALIGN`` as today."""
 _PADDED = gemm_layers.padded
 
 
+def _check(align: int) -> None:
+    if align < 1 or align % gemm_layers.ALIGN:
+        raise ValueError(f"--align {align} must be a positive multiple of {gemm_layers.ALIGN}")
+
+
 def pad_widths_to(align: int) -> None:
     """From now on, in this process, ``gemm_layers`` pads widths of at least ``ALIGNED_FROM``
     to multiples of ``align``."""
-    if align < 1 or align % gemm_layers.ALIGN:
-        raise ValueError(f"--align {align} must be a positive multiple of {gemm_layers.ALIGN}")
+    _check(align)
     gemm_layers.padded = lambda n: -(-n // align) * align if n >= ALIGNED_FROM else _PADDED(n)
 
 
@@ -106,9 +110,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--one", type=Path, help=argparse.SUPPRESS)  # a child: its row's file
     args = parser.parse_args(argv)
-    for align in args.align:
-        if align < 1 or align % gemm_layers.ALIGN:
-            parser.error(f"--align {align} must be a positive multiple of {gemm_layers.ALIGN}")
+    try:
+        for align in args.align:
+            _check(align)
+    except ValueError as e:
+        parser.error(str(e))
     if args.one is not None:
         atomic_write_json(args.one, one(args.align[0], args))
         return {}
