@@ -5,7 +5,8 @@ The estimate is read from a table derived from measurements kept in ``results/``
 * agent env-steps/s of the full training step, per device kind, learner precision, network
   size (``paper`` and ``stable`` share one) and population size: the rows of
   ``experiments/bench_train.py``'s reports (``results/bench_train*.json``,
-  ``results/bench_train_largest/*.json``), ATD3+AfDP, the newest program's rows: those of
+  ``results/bench_train_largest/*.json``, ``results/bench_train_programs/*.json``) of the
+  program training picks (``--program auto``), ATD3+AfDP, the newest program's rows: those of
   the newest date with several rows and of any later date, and older rows of larger
   populations (``_newest_program``);
 * each agent type's speed relative to ATD3+AfDP and its mean training-episode length, per
@@ -50,7 +51,11 @@ def _bench_rows(paths: list[Path]) -> list[dict]:
     for path in paths:
         report = json.loads(path.read_text())
         size = SIZE_OF_PRESET.get(report.get("preset", "paper"))
-        if size is None or report.get("agent", REFERENCE_TYPE) != REFERENCE_TYPE:
+        if (
+            size is None
+            or report.get("agent", REFERENCE_TYPE) != REFERENCE_TYPE
+            or report.get("program", "auto") != "auto"
+        ):
             continue
         for row in report.get("rows", []):
             if row.get("devices", 1) != 1 or "agent_steps_per_s" not in row:
@@ -165,9 +170,9 @@ def _motion_lengths(roots: list[Path]) -> dict:
 
 def derive(results: Path = RESULTS) -> dict:
     """The table written to ``sweep_throughput.json``."""
-    paths = sorted(results.glob("bench_train*.json")) + sorted(
-        (results / "bench_train_largest").glob("*.json")
-    )
+    paths = sorted(results.glob("bench_train*.json"))  # first: the canonical file wins a date's tie
+    for folder in ("bench_train_largest", "bench_train_programs"):
+        paths += sorted((results / folder).glob("*.json"))
     return {
         "note": "derived by `python -m advisor_jax.study.throughput` from the files named in "
         "each row; agent env-steps/s of ATD3+AfDP, one device",

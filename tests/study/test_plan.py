@@ -196,3 +196,35 @@ def test_the_throughput_table_keeps_the_newest_program_and_later_single_rows():
               row("2026-11-28", 1), row("2026-11-28", 64), row("2026-11-25", 896)]  # fmt: skip
     assert _newest_program(larger) == {1: larger[3], 64: larger[4], 1024: larger[0],
                                        1152: larger[1]}  # fmt: skip
+
+
+def test_the_throughput_table_reads_only_the_program_training_picks(tmp_path, monkeypatch):
+    """A benchmark of a forced program (``--program general``) measures a program training
+    does not run; the same date's ``auto`` report in ``bench_train_programs/`` is read."""
+    import json
+
+    from advisor_jax.study import throughput
+
+    def report(program, rate):
+        rows = [{"agents": a, "devices": 1, "precision": "fp32", "agent_steps_per_s": rate}
+                for a in (1, 64)]  # fmt: skip
+        return {"device": "G", "date": "2026-11-28", "preset": "paper", "agent": "ATD3+AfDP",
+                "program": program, "rows": rows}  # fmt: skip
+
+    folder = tmp_path / "results" / "bench_train_programs"
+    folder.mkdir(parents=True)
+    monkeypatch.setattr(throughput, "RESULTS", folder.parent)
+    for name, program, rate in (("a_general", "general", 1.0), ("b_auto", "auto", 2.0)):
+        (folder / f"{name}.json").write_text(json.dumps(report(program, rate)))
+    rows = throughput._bench_rows(sorted(folder.glob("*.json")))
+    assert [(r["agents"], r["agent_steps_per_s"]) for r in rows] == [(1, 2.0), (64, 2.0)]
+
+
+def test_the_committed_throughput_table_is_derived_from_the_committed_results():
+    """``sweep --dry-run`` estimates from ``results/sweep_throughput.json``: a new benchmark
+    in ``results/`` without ``python -m advisor_jax.study.throughput`` fails here."""
+    import json
+
+    from advisor_jax.study import throughput
+
+    assert throughput.derive() == json.loads(throughput.TABLE.read_text())
