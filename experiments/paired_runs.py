@@ -95,31 +95,44 @@ def main(argv=None) -> int:
     parser.add_argument("--eval-seed", type=int, default=None)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    control = the_point(args.control, args.eval_seed)
-    treatment = the_point(args.treatment, args.eval_seed)
+    given = sys.argv[1:] if argv is None else argv
+    command = writing.command_line("experiments/paired_runs.py", given)
+    print(write_pairing(args.control, args.treatment, args.out, command, args.eval_seed))
+    return 0
+
+
+def write_pairing(
+    control_path: Path,
+    treatment_path: Path,
+    out: Path,
+    command: str,
+    eval_seed: int | None = None,
+    name: str = "paired",
+) -> str:
+    """``out``/``name``.json and .md: ``compare`` and ``same_episodes`` of the two runs; returns
+    the page."""
+    control = the_point(control_path, eval_seed)
+    treatment = the_point(treatment_path, eval_seed)
     rows = compare(control, treatment)
     episodes = same_episodes(control, treatment)
-    args.out.mkdir(parents=True, exist_ok=True)
-    record = dict(control=str(args.control), treatment=str(args.treatment), arenas=rows)
+    out.mkdir(parents=True, exist_ok=True)
+    record = dict(control=str(control_path), treatment=str(treatment_path), arenas=rows)
     if episodes is not None:
         record["same_episodes"] = episodes
-    atomic_write_json(args.out / "paired.json", dict(agent=control.agent, **record))
+    atomic_write_json(out / f"{name}.json", dict(agent=control.agent, **record))
     table = "\n".join(writing.markdown_table(
         ("arena", "control success (%)", "treatment success (%)", "treatment − control", "verdict"),
         [(a, r["control"], r["treatment"], r["difference"], r["verdict"]) for a, r in rows.items()],
         align="l",
     ))  # fmt: skip
-    given = sys.argv[1:] if argv is None else argv
-    command = writing.command_line("experiments/paired_runs.py", given)
     text = (
-        f"# {control.agent}: {args.treatment} against {args.control}\n\n"
+        f"# {control.agent}: {treatment_path} against {control_path}\n\n"
         f"Same agent, settings, {len(control.seeds)} seeds and evaluation episodes; success, "
         "mean ± 95 % interval; the difference paired by seed.\n\n"
         f"{table}\n\n{_episodes_line(episodes)}Command: `{command}`\n"
     )
-    (args.out / "paired.md").write_text(text)
-    print(text)
-    return 0
+    (out / f"{name}.md").write_text(text)
+    return text
 
 
 def _episodes_line(episodes: dict | None) -> str:

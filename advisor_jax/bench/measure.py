@@ -219,14 +219,21 @@ def run_reference(tree: str | os.PathLike, script: str, argv: Sequence[str], rep
     path = tree / "experiments" / script
     if not path.exists():
         raise SystemExit(f"--reference {tree}: no experiments/{script} there")
-    here = Path(__file__).resolve().parents[2]  # this checkout
-    paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    paths = [str(tree)] + [p for p in paths if Path(p).resolve() != here]
     with tempfile.TemporaryDirectory() as out:
         subprocess.run(
             [sys.executable, str(path), *argv, "--out", out],
             check=True,
-            env={**os.environ, "PYTHONPATH": os.pathsep.join(paths)},
+            env=checkout_env(tree),
             cwd=path.parent,
         )
         return json.loads((Path(out) / report).read_text())
+
+
+def checkout_env(tree: str | os.PathLike) -> dict[str, str]:
+    """This process's environment with ``PYTHONPATH`` led by the checkout ``tree`` and without
+    this checkout: a subprocess started with it (in a folder outside this checkout) imports
+    ``tree``'s ``advisor_jax``."""
+    here = Path(__file__).resolve().parents[2]  # this checkout
+    paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    paths = [str(Path(tree).resolve())] + [p for p in paths if Path(p).resolve() != here]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(paths)}
