@@ -5,13 +5,14 @@ tensor cores' 16 bytes at bf16), so the paper's critic runs [24 → 1008 → 504
 ran the critics' weight gradients at shapes padded to multiples of 64 (1024×512 and 512×640,
 batch 1024) in 7 % and 4 % less time than at the paper's, for more arithmetic
 (``results/bench_wgrad_adam/``: ``probe_mosaic_gemm.py``). This benchmark asks the question
-for the whole training step: ``bench_train.py``'s ``full_step`` with every width of at least
-``ALIGNED_FROM`` (the hidden layers' outputs, and so the next layers' inputs) padded to a
-multiple of ``--align`` and the networks' input widths to 8 as today. The padding columns stay
-0, so the function is the same; the sums' order, and so the rounding, may differ.
+for the whole training step: ``bench_train.py``'s ``full_step`` with the learner's
+``networks.Layout.hidden_align`` set to ``--align`` whatever the program would choose
+(``program.program_layout``, ``ALIGNED_WIDTHS``): hidden widths of at least 8 × align padded
+to its multiples (``gemm_layers.padded``), the inputs to 8. The padding columns stay 0, so the
+function is the same; the sums' order, and so the rounding, may differ.
 
     python experiments/bench_width_align.py --align 8 64 32 8 --agents 64   # one GPU
-    python experiments/bench_width_align.py --align 64 --preset quick --agents 1 --chunk 20  # CPU
+    python experiments/bench_width_align.py --align 16 --preset quick --agents 1 --chunk 20  # CPU
 
 On a CPU the learner keeps its flax modules (``program.layers_in_gemm``), which no padding
 touches: a CPU run exercises the script, not the question. Each alignment runs in a process
@@ -36,12 +37,7 @@ from advisor_jax.agent.config import preset
 from advisor_jax.agent.networks import init_critics, make_critic
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
-
-ALIGNED_FROM = 100
-"""Widths of at least this many are padded to ``--align``; narrower ones (the inputs' 22 + 1
-columns) to ``gemm_layers.ALIGN`` as today."""
-
-_PADDED = gemm_layers.padded
+from advisor_jax.training import program
 
 
 def _check(align: int) -> None:
@@ -50,18 +46,19 @@ def _check(align: int) -> None:
 
 
 def pad_widths_to(align: int) -> None:
-    """From now on, in this process, ``gemm_layers`` pads widths of at least ``ALIGNED_FROM``
-    to multiples of ``align``."""
+    """From now on, in this process, every program's learners pad their hidden widths to
+    ``align`` (``Layout.hidden_align``)."""
     _check(align)
-    gemm_layers.padded = lambda n: -(-n // align) * align if n >= ALIGNED_FROM else _PADDED(n)
+    chosen = program.program_layout
+    program.program_layout = lambda *a, **k: chosen(*a, **k)._replace(hidden_align=align)
 
 
-def critic_shapes(preset_name: str, agent: str = "ATD3+AfDP") -> list[list[int]]:
-    """The critic's GEMM matrices' shapes at ``preset_name`` as ``gemm_layers`` builds them now."""
+def critic_shapes(preset_name: str, align: int, agent: str = "ATD3+AfDP") -> list[list[int]]:
+    """The critic's GEMM matrices' shapes at ``preset_name`` and ``align``."""
     critic = make_critic(preset(preset_name, agent)[0].agent)
     params = jax.eval_shape(lambda k: init_critics(critic, k, 1), jax.random.key(0))
     params = jax.tree.map(lambda leaf: jnp.zeros(leaf.shape[1:], leaf.dtype), params)
-    return [list(m.shape) for m in gemm_layers.critic_matrices(params)]
+    return [list(m.shape) for m in gemm_layers.critic_matrices(params, jnp.float32, align)]
 
 
 def one(align: int, args: argparse.Namespace) -> dict:
@@ -71,7 +68,7 @@ def one(align: int, args: argparse.Namespace) -> dict:
     pad_widths_to(align)
     row = full_step(args.preset, args.agent, args.agents, 1, args.precision, args.chunk,
                     args.repeats, chunk_program=args.program)  # fmt: skip
-    return dict(align=align, critic_shapes=critic_shapes(args.preset, args.agent), **row)
+    return dict(align=align, critic_shapes=critic_shapes(args.preset, align, args.agent), **row)
 
 
 def report(result: dict, command: str) -> list[str]:

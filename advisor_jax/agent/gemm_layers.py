@@ -20,7 +20,9 @@ the two terms 0, exactly.
 Widths are padded with zero columns to multiples of ``ALIGN`` (the tensor cores' 16 bytes
 at bf16); a padding column stays 0 (``relu(0)``) and gets a zero gradient. At the paper's
 sizes the critic's GEMMs are [24 → 1008 → 504 → 608], 2 % more multiply-adds than
-[22 → 1004 → 500 → 600].
+[22 → 1004 → 500 → 600]. A wider ``align`` (``networks.Layout.hidden_align``) pads the hidden
+layers' outputs of at least ``8 · align`` columns to its multiples: at 32, [24 → 1024 → 512 →
+608], the shapes cuBLAS runs faster (``training.program.ALIGNED_WIDTHS``).
 
 The same parameters (the flax trees that ``networks.Actor`` / ``networks.Critic`` initialise,
 and their gradients in the same trees) and the same function: the sums differ only in order
@@ -44,9 +46,11 @@ ALIGN = 8
 """GEMM widths are padded to a multiple of this (16 bytes of bf16)."""
 
 
-def padded(n: int) -> int:
-    """``n`` rounded up to a multiple of ``ALIGN``."""
-    return -(-n // ALIGN) * ALIGN
+def padded(n: int, align: int = ALIGN) -> int:
+    """``n`` rounded up to a multiple of ``align`` where that adds at most an eighth (``n ≥
+    8 · align``), else of ``ALIGN``."""
+    step = align if n >= 8 * align else ALIGN
+    return -(-n // step) * step
 
 
 @jax.custom_vjp
@@ -87,9 +91,13 @@ def _placed(block: jax.Array, row: int, col: int, shape: tuple[int, int]) -> jax
 
 
 def layer_matrix(
-    blocks: Sequence[tuple[jax.Array, int]], bias: jax.Array, k_in: int, dtype: Any
+    blocks: Sequence[tuple[jax.Array, int]],
+    bias: jax.Array,
+    k_in: int,
+    dtype: Any,
+    align: int = ALIGN,
 ) -> jax.Array:
-    """The augmented matrix of a hidden layer, ``[k_in, padded(n + 1)]``, in ``dtype``:
+    """The augmented matrix of a hidden layer, ``[k_in, padded(n + 1, align)]``, in ``dtype``:
     ``[[rows, 0, 0], [bias, 1, 0], [0, 0, 0]]``, where ``rows`` ``[k, n]`` is ``blocks``
     (``(block, first column)`` pairs) stacked, each block at its column and 0 elsewhere.
     Against an input ``[x, 1, 0…]`` it gives ``[x @ rows + bias, 1, 0…]``.
@@ -98,7 +106,7 @@ def layer_matrix(
     cast: the pass the unaugmented weights took for their cast to bf16 alone (a
     concatenation instead compiles to a kernel that took twice as long on an H100)."""
     n = bias.shape[0]
-    shape = (k_in, padded(n + 1))
+    shape = (k_in, padded(n + 1, align))
     bias_row = jnp.concatenate([bias, jnp.ones((1,), bias.dtype)])[None]
     matrix, row = _placed(bias_row, sum(b.shape[0] for b, _ in blocks), 0, shape), 0
     for block, col in blocks:
@@ -163,16 +171,17 @@ def _head_matrix(dense: dict, k_in: int) -> jax.Array:
     return head_matrix(dense["kernel"], dense["bias"], k_in)
 
 
-def actor_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
-    """The actor's augmented matrices in ``dtype`` (hidden layers) and fp32 (the head):
-    what ``actor_forward`` multiplies by; a function of the parameters alone, so a caller
-    may build them once for several passes (``agent.learner``'s target networks)."""
+def actor_matrices(params: Any, dtype: Any = jnp.float32, align: int = ALIGN) -> list[jax.Array]:
+    """The actor's augmented matrices in ``dtype`` (hidden layers, their widths ``padded`` to
+    ``align``) and fp32 (the head): what ``actor_forward`` multiplies by; a function of the
+    parameters alone, so a caller may build them once for several passes (``agent.learner``'s
+    target networks)."""
     p = params["params"]
     n_hidden = sum(name.startswith("hidden_") for name in p)
     k_in, matrices = padded(p["hidden_0"]["kernel"].shape[0] + 1), []
     for i in range(n_hidden):
         layer = p[f"hidden_{i}"]
-        matrices.append(layer_matrix([(layer["kernel"], 0)], layer["bias"], k_in, dtype))
+        matrices.append(layer_matrix([(layer["kernel"], 0)], layer["bias"], k_in, dtype, align))
         k_in = matrices[-1].shape[1]
     return [*matrices, _head_matrix(p["head"], k_in)]
 
@@ -196,7 +205,7 @@ def _pass_on_signs(n: int, dtype: Any) -> jax.Array:
     return jnp.kron(jnp.eye(n, dtype=dtype), jnp.asarray([[1.0, -1.0]], dtype))
 
 
-def critic_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
+def critic_matrices(params: Any, dtype: Any = jnp.float32, align: int = ALIGN) -> list[jax.Array]:
     """The critic's augmented matrices in ``dtype`` (hidden layers) and fp32 (the head), as
     ``actor_matrices``. The first layer passes the action on as ``relu(±a)``; the join
     layer holds ``K_a`` against ``relu(a)`` and ``-K_a`` against ``relu(-a)`` (module
@@ -210,15 +219,15 @@ def critic_matrices(params: Any, dtype: Any = jnp.float32) -> list[jax.Array]:
     # [[K_s, 0], [0, ±1]]: the state layer, and the action passed on
     first = [(state["kernel"], 0), (_pass_on_signs(n_act, state["kernel"].dtype), width)]
     first_bias = jnp.pad(state["bias"], (0, 2 * n_act))
-    matrices = [layer_matrix(first, first_bias, padded(n_in + n_act + 1), dtype)]
+    matrices = [layer_matrix(first, first_bias, padded(n_in + n_act + 1), dtype, align)]
     signed = jnp.stack([k_a, -k_a], axis=1).reshape(2 * n_act, -1)  # against relu(+a), relu(-a)
     blocks = [(join["kernel"]["state"], 0), (signed, 0)]
-    matrices.append(layer_matrix(blocks, join["bias"], matrices[-1].shape[1], dtype))
+    matrices.append(layer_matrix(blocks, join["bias"], matrices[-1].shape[1], dtype, align))
     i = 1
     while f"hidden_{i}" in p:
         layer = p[f"hidden_{i}"]
         k_in = matrices[-1].shape[1]
-        matrices.append(layer_matrix([(layer["kernel"], 0)], layer["bias"], k_in, dtype))
+        matrices.append(layer_matrix([(layer["kernel"], 0)], layer["bias"], k_in, dtype, align))
         i += 1
     return [*matrices, _head_matrix(p["q"], matrices[-1].shape[1])]
 

@@ -77,11 +77,13 @@ def _read(matrices: list[jax.Array], hidden_copies: list[jax.Array] | None) -> l
 class Structure(NamedTuple):
     """Which entries of each augmented matrix are parameters: those in a row of ``rows`` and a
     column of ``cols`` (static bool vectors per layer); ``tied``: (layer, first row, pairs)
-    of the join layer's interleaved ``(+K_a, -K_a)`` rows."""
+    of the join layer's interleaved ``(+K_a, -K_a)`` rows; ``align``: the hidden widths'
+    (``gemm_layers.critic_matrices``' ``align``)."""
 
     rows: tuple[np.ndarray, ...]
     cols: tuple[np.ndarray, ...]
     tied: tuple[int, int, int]
+    align: int = gemm_layers.ALIGN
 
     def mask(self, layer: int) -> np.ndarray:
         return self.rows[layer][:, None] & self.cols[layer][None, :]
@@ -95,16 +97,17 @@ class Structure(NamedTuple):
         return out
 
 
-def structure(critic_params: Any) -> Structure:
-    """The ``Structure`` of one critic's matrices (``gemm_layers.critic_matrices``) for a
-    params tree of its shapes (no critic axis; arrays or ``jax.ShapeDtypeStruct``): an entry
-    is a parameter where the matrices built from all-ones and all-zeros parameters differ."""
+def structure(critic_params: Any, align: int = gemm_layers.ALIGN) -> Structure:
+    """The ``Structure`` of one critic's matrices (``gemm_layers.critic_matrices`` at ``align``)
+    for a params tree of its shapes (no critic axis; arrays or ``jax.ShapeDtypeStruct``): an
+    entry is a parameter where the matrices built from all-ones and all-zeros parameters
+    differ."""
     with jax.ensure_compile_time_eval():
         ones, zeros = (
             jax.tree.map(lambda s, v=v: jnp.full(s.shape, v, jnp.float32), critic_params)
             for v in (1.0, 0.0)
         )
-        built = [gemm_layers.critic_matrices(p, jnp.float32) for p in (ones, zeros)]
+        built = [gemm_layers.critic_matrices(p, jnp.float32, align) for p in (ones, zeros)]
         differs = [np.asarray(a) != np.asarray(b) for a, b in zip(*built, strict=True)]
     rows = tuple(d.any(axis=1) for d in differs)
     cols = tuple(d.any(axis=0) for d in differs)
@@ -116,16 +119,17 @@ def structure(critic_params: Any) -> Structure:
     signs = np.asarray(built[0][layer] - built[1][layer])[first : first + 2 * pairs]
     if not (np.all(signs[0::2][:, cols[layer]] == 1) and np.all(signs[1::2][:, cols[layer]] == -1)):
         raise ValueError(f"rows {first}.. of critic layer {layer} are not (+K_a, -K_a) pairs")
-    return Structure(rows, cols, tied)
+    return Structure(rows, cols, tied, align)
 
 
 def _masked(matrices: list[jax.Array], s: Structure) -> list[jax.Array]:
     return [jnp.where(s.mask(i), m, jnp.zeros((), m.dtype)) for i, m in enumerate(matrices)]
 
 
-def _build(critics: Any) -> list[jax.Array]:
+def _build(critics: Any, s: Structure) -> list[jax.Array]:
     """fp32 augmented matrices of critics stacked on a leading axis (values placed exactly)."""
-    return jax.vmap(gemm_layers.critic_matrices, in_axes=(0, None))(critics, jnp.float32)
+    build = lambda c: gemm_layers.critic_matrices(c, jnp.float32, s.align)  # noqa: E731
+    return jax.vmap(build)(critics)
 
 
 def _adam_states(opt_state: Any, convert: Callable[[Any, str], Any]) -> Any:
@@ -167,11 +171,11 @@ def hold(
 
     def moments(tree, name):
         dtype_of = jax.tree.leaves(tree)[0].dtype
-        built = _masked(_build(tree), s)
+        built = _masked(_build(tree, s), s)
         built = [jnp.abs(m) for m in built] if name == "nu" else built
         return [m.astype(dtype_of) for m in built]
 
-    online, target = _build(critic), _build(target_critic)
+    online, target = _build(critic, s), _build(target_critic, s)
     opt = _adam_states(critic_opt, moments)
     if in_dtype:  # the hidden matrices in ``dtype``, the head as it is
         online, target = ([*(x.astype(dtype) for x in m[:-1]), m[-1]] for m in (online, target))
@@ -198,7 +202,7 @@ def _unbuild(matrices: list[jax.Array], template: Any, s: Structure) -> Any:
         for i, m in enumerate(matrices)
     ]
     zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, jnp.float32), template)
-    _, pullback = jax.vjp(_build, zeros)
+    _, pullback = jax.vjp(lambda critics: _build(critics, s), zeros)
     return pullback(kept)[0]
 
 

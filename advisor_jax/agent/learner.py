@@ -141,7 +141,7 @@ def make_learner(
         critics_shape = jax.eval_shape(lambda k: init_critics(critic, k, cfg.n_critics),
                                        jax.random.key(0))  # fmt: skip
         one = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), critics_shape)
-        structure = held_critics.structure(one)
+        structure = held_critics.structure(one, layout.hidden_align)
 
     def adam(learning_rate: jax.Array | float) -> optax.GradientTransformation:
         return optimizer.adam(learning_rate, mu_dtype, nu_bf16)  # lr: a traced hyperparameter

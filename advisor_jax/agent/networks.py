@@ -150,6 +150,9 @@ class Layout(NamedTuple):
     """With ``held_critics``: a bf16 learner's held critics keep their hidden matrices (θ and
     θ^T) in bf16 only, each update rounded stochastically (``held_critics.hold``'s
     ``in_dtype``): no fp32 master to read and write, no copy to write."""
+    hidden_align: int = gemm_layers.ALIGN
+    """With ``layers_in_gemm``: the hidden layers' widths of at least 8 × this are padded to its
+    multiples (``gemm_layers.padded``), the others to ``gemm_layers.ALIGN``."""
 
 
 MODULES = Layout()
@@ -205,9 +208,11 @@ def learner_functions(
     if not layout.layers_in_gemm:
         return NetworkFunctions(_unchanged, actor.apply), NetworkFunctions(_unchanged, critic.apply)
     return (
-        NetworkFunctions(partial(gemm_layers.actor_matrices, dtype=actor.dtype),
+        NetworkFunctions(partial(gemm_layers.actor_matrices, dtype=actor.dtype,
+                                 align=layout.hidden_align),
                          partial(gemm_layers.actor_forward, head_sums=layout.head_sums)),
-        NetworkFunctions(partial(gemm_layers.critic_matrices, dtype=critic.dtype),
+        NetworkFunctions(partial(gemm_layers.critic_matrices, dtype=critic.dtype,
+                                 align=layout.hidden_align),
                          partial(gemm_layers.critic_forward,
                                  first_layer_kernel=layout.first_layer_kernel,
                                  head_sums=layout.head_sums)),

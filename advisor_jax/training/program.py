@@ -11,14 +11,11 @@ leave open:
   one (``train.make_train``'s ``steady``: sharded populations on GPUs, and bf16 populations
   on one GPU whose memory holds it) or the latency-bound one (the steady program with
   overlapping kernels, for at most ``latency_bound_agents(precision)`` agents per GPU);
-* how the learner's networks are computed (``network_layout``): the twin critics' input
-  layout (``twin_inputs_per_critic``), each hidden layer as one GEMM
-  (``layers_in_gemm``, ``agent/gemm_layers.py``), whose target networks a chunk holds built
-  (``holds_networks``) and whose critics, for fp32 learners in the general program and bf16
-  populations in the steady and the latency-bound ones, it holds as the matrices the GEMMs
-  read (``holds_critics``, ``program_layout``), whether a bf16 learner's fp32 output heads are
-  products summed per output (``sums_heads``), and the critic's first-layer kernel
-  (``agent/masked_wgrad.py``);
+* how the learner's networks are computed (``networks.Layout``: ``network_layout``,
+  ``program_layout``): the twin critics' inputs, each hidden layer one GEMM
+  (``agent/gemm_layers.py``), held target networks (``holds_networks``) and critics
+  (``holds_critics``), summed heads (``sums_heads``), the widths' alignment
+  (``ALIGNED_WIDTHS``) and the critic's first-layer kernel (``agent/masked_wgrad.py``);
 * the XLA options of the compiled chunk (``compiler_options``), which depend on the
   learner's precision (``AgentConfig.precision``) and on the latency-bound program.
 
@@ -85,30 +82,26 @@ def compiler_options(
     steady: bool = False,
     separate: bool = False,
 ) -> dict[str, bool | str] | None:
-    """``jax.jit``'s ``compiler_options`` for a program holding a ``precision`` learner
-    (``AgentConfig.precision``) on ``backend`` (JAX's default when None); None: XLA's
-    defaults (every CPU program). The options belong to one program, never to the process:
-    a user's ``XLA_FLAGS`` and other jitted functions are left alone.
+    """``jax.jit``'s ``compiler_options`` for a program holding a ``precision`` learner on
+    ``backend`` (JAX's default when None); None: XLA's defaults (every CPU program). They
+    belong to one program: a user's ``XLA_FLAGS`` and other jitted functions are left alone.
 
     On GPUs:
 
-    * ``overlap`` (a latency-bound program, ``latency_bound``): ``OVERLAPPING_KERNELS``. XLA
-      runs a program's kernels as CUDA graphs, by default as one chain; built by data
-      dependence, the independent small kernels of a 1-agent step (target and online
-      critic passes, the advisor and the env beside the update) run side by side. XLA then
-      no longer reuses a buffer between kernels that may overlap: more memory.
+    * ``overlap`` (a latency-bound program, ``latency_bound``): ``OVERLAPPING_KERNELS``. XLA's
+      CUDA graphs, by default one chain, built by data dependence: a 1-agent step's small
+      independent kernels (critic passes, advisor, env) run side by side; buffers are no
+      longer reused between kernels that may overlap: more memory.
     * ``steady`` too (the program's loops hold no ``lax.cond``: the chunk's steady program,
       the learner benchmark's block loop): ``WHOLE_LOOPS``, each scan one graph launched
       once instead of one launch per step (``results/bench_train_steady/``).
-    * bf16: ``CUBLAS_GEMMS``. Left free, XLA's autotuner hands the bf16 matmuls to Triton
-      fusions that ran the critic's large GEMMs far below cuBLAS
-      (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``).
+    * bf16: ``CUBLAS_GEMMS``. XLA's autotuner gave the bf16 matmuls to Triton fusions far
+      slower than cuBLAS (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``).
     * ``separate`` (``separates_outputs``): ``SEPARATE_OUTPUTS``, after the passes that
       ``XLA_FLAGS`` disables (a program's list replaces the process's).
-    * fp32, but for the latency-bound program: ``CUBLAS_GEMMS`` too. With its target networks
-      held, the autotuner gave one of the target critic's GEMMs to Triton; the 128-agent fp32
-      learner ran 1.03× faster on cuBLAS (``results/bench_first_layer_kernel/``). The
-      latency-bound fp32 program, not measured that way, keeps XLA's default.
+    * fp32, but for the latency-bound program (not measured so): ``CUBLAS_GEMMS`` too. The
+      autotuner gave a held target critic's GEMM to Triton; the 128-agent fp32 learner ran
+      1.03× faster on cuBLAS (``results/bench_first_layer_kernel/``).
     """
     backend = jax.default_backend() if backend is None else backend
     if backend != "gpu":
@@ -196,31 +189,39 @@ def holds_critics(program: str, precision: str, agents_per_device: int | None = 
 
 def sums_heads(program: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` computes a bf16 learner's fp32 output heads from its bf16
-    activations as products summed per output (``Layout.head_sums``; only with
-    ``layers_in_gemm``), not a cast and an fp32 GEMM. One H100, jax 0.11.2, against the tree
-    before in one command each: the 128-agent bf16 learner 1.022× (steady program, two
-    commands), the 64-agent bf16 step 1.024×; but the 1-agent step, the latency-bound program,
-    0.98× and 0.963× (two commands), so not in the latency-bound program of at most
-    ``LATENCY_BOUND_AGENTS`` agents per device (``agents_per_device``; None: unknown, as
-    there) (``results/bench_head_sums/``). Its larger bf16 populations (up to
-    ``LATENCY_BOUND_BF16_AGENTS``) sum them: 64 agents 1.022× on one H200
-    (``results/bench_latency_bound_64/``)."""
+    activations as products summed per output (``Layout.head_sums``), not a cast and an fp32
+    GEMM. One H100, jax 0.11.2, against the tree before: the 128-agent bf16 learner 1.022×
+    (steady, two commands), the 64-agent step 1.024×; the 1-agent latency-bound step 0.98× and
+    0.963×, so not in the latency-bound program of at most ``LATENCY_BOUND_AGENTS`` agents per
+    device (``agents_per_device``; None: unknown, as there) (``results/bench_head_sums/``);
+    above that, 64 agents 1.022× on one H200 (``results/bench_latency_bound_64/``)."""
     if program != "latency-bound":
         return True
     return agents_per_device is not None and agents_per_device > LATENCY_BOUND_AGENTS
+
+
+ALIGNED_WIDTHS = 32
+"""``Layout.hidden_align`` of bf16 learners in the latency-bound program of more than
+``LATENCY_BOUND_AGENTS`` agents per device (paper sizes: critic 24 → 1024 → 512 → 608, actor
+24 → 608 → 320). 64 agents, one H100, a process each in one command, align 8, 64, 32, 8:
+17,256, 18,256, 18,209, 17,253 agent env-steps/s (``results/bench_width_align/``)."""
 
 
 def program_layout(
     program: str, precision: str, backend: str | None = None, agents_per_device: int | None = None
 ) -> Layout:
     """``network_layout`` for the chunk's ``program`` and the learners' ``precision``: with the
-    critics held where ``holds_critics`` says for ``agents_per_device`` and the heads summed
-    where ``sums_heads`` says (both only with ``layers_in_gemm``)."""
+    critics held where ``holds_critics`` says for ``agents_per_device``, the heads summed
+    where ``sums_heads`` says and the widths aligned as ``ALIGNED_WIDTHS`` says (all only with
+    ``layers_in_gemm``)."""
     layout = network_layout(backend)
     gemm = layout.layers_in_gemm
     held = gemm and holds_critics(program, precision, agents_per_device)
     heads = gemm and sums_heads(program, agents_per_device)
-    return layout._replace(held_critics=held, head_sums=heads)
+    wide = agents_per_device is not None and agents_per_device > LATENCY_BOUND_AGENTS
+    wide = gemm and wide and (program, precision) == ("latency-bound", "bf16")
+    align = ALIGNED_WIDTHS if wide else layout.hidden_align
+    return layout._replace(held_critics=held, head_sums=heads, hidden_align=align)
 
 
 def holds_networks(program: str, precision: str = "fp32") -> bool:
@@ -271,8 +272,7 @@ Where a config has no steady program (``make_train``) the steady ones run the ge
 
 
 def latency_bound_agents(precision: str) -> int:
-    """The most agents per GPU of ``precision`` learners that get the latency-bound program:
-    ``LATENCY_BOUND_BF16_AGENTS`` for bf16, ``LATENCY_BOUND_AGENTS`` for fp32."""
+    """The most agents per GPU of ``precision`` learners that get the latency-bound program."""
     return LATENCY_BOUND_BF16_AGENTS if precision == "bf16" else LATENCY_BOUND_AGENTS
 
 

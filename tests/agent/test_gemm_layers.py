@@ -205,3 +205,46 @@ def test_a_learner_with_summed_heads_is_the_same_function(nets):
         np.testing.assert_allclose(
             summed[i].apply(params, *inputs), plain[i].apply(params, *inputs), rtol=1e-5, atol=1e-5
         )
+
+
+def test_wider_hidden_alignment_pads_the_wide_layers_and_keeps_the_function(nets):
+    """``Layout.hidden_align`` pads hidden widths of at least 8 × align to its multiples (the
+    others and the inputs to ``ALIGN``): more zero columns, the same Q and π and the same
+    parameter gradients in fp32."""
+    _, _, _, _, obs, action = nets
+    actor, critic = networks.Actor(hidden=(260, 12)), networks.Critic(300, (200, 12))
+    k_a, k_c = jax.random.split(jax.random.key(4))
+    actor_params = _with_biases(networks.init_actor(actor, k_a), k_a)
+    critic_params = _with_biases(critic.init(k_c, jnp.zeros((1, 20)), jnp.zeros((1, 2))), k_c)
+    narrow = networks.learner_functions(actor, critic, networks.Layout(layers_in_gemm=True))
+    wide = networks.learner_functions(
+        actor, critic, networks.Layout(layers_in_gemm=True, hidden_align=32)
+    )
+    # 300 + 4 + 1 = 305 ≥ 256 columns pad to 320; 201 and 13 to multiples of 8; the input 24
+    assert [m.shape for m in wide[1].build(critic_params)] == [(24, 320), (320, 208),
+                                                               (208, 16), (16, 1)]  # fmt: skip
+    assert [m.shape for m in narrow[1].build(critic_params)][0] == (24, 312)
+    assert [m.shape for m in wide[0].build(actor_params)] == [(24, 288), (288, 16), (16, 2)]
+    cases = [(0, actor_params, (obs,)), (1, critic_params, (obs, action))]
+    for i, params, inputs in cases:
+
+        def loss(p, fns, inputs=inputs):
+            return jnp.sum(fns.apply(p, *inputs) ** 2)
+
+        want, want_grad = jax.value_and_grad(loss)(params, narrow[i])
+        got, got_grad = jax.value_and_grad(loss)(params, wide[i])
+        np.testing.assert_allclose(got, want, rtol=1e-5)
+        assert max_relative_difference(got_grad, want_grad) < 1e-4
+
+
+def test_bf16_latency_bound_populations_above_32_agents_align_their_widths_to_32():
+    from advisor_jax.training import program
+
+    for name in program.PROGRAMS:
+        for precision in ("fp32", "bf16"):
+            for agents in (1, program.LATENCY_BOUND_AGENTS, 33, 64, None):
+                got = program.program_layout(name, precision, "gpu", agents_per_device=agents)
+                wide = (name, precision) == ("latency-bound", "bf16") and (agents or 0) > 32
+                assert got.hidden_align == (program.ALIGNED_WIDTHS if wide else 8), (name, agents)
+            assert program.program_layout(name, precision, "cpu", 64).hidden_align == 8
+    assert program.ALIGNED_WIDTHS == 32

@@ -78,6 +78,20 @@ def test_hold_then_release_gives_back_the_trees_exactly(critics, mu_dtype):
     assert bool(jnp.all(nu >= 0))
 
 
+def test_held_critics_at_a_wider_alignment_release_exactly():
+    """The structure carries the matrices' alignment (``Layout.hidden_align``): held at 16 the
+    [24 → 32 → 24 → 24] matrices give back the trees exactly."""
+    cfg = _cfg()
+    params = networks.init_critics(networks.make_critic(cfg), jax.random.key(2), cfg.n_critics)
+    s = held_critics.structure(jax.tree.map(lambda x: x[0], params), align=16)
+    opt = optax.adam(1e-3).init(params)
+    held = held_critics.hold(params, params, opt, s, jnp.float32)
+    assert s.align == 16 and [m.shape[1:] for m in held.online] == [
+        (24, 32), (32, 24), (24, 24), (24, 1)
+    ]  # fmt: skip
+    _assert_equal(held_critics.release(held, params, s), (params, params, opt))
+
+
 def test_the_held_gradient_is_the_trees_gradient_placed_back(critics):
     params, s = critics
     nets = jax.vmap(gemm_layers.critic_matrices)(params)
