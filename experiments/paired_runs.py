@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     given = sys.argv[1:] if argv is None else argv
     command = writing.command_line("experiments/paired_runs.py", given)
-    print(write_pairing(args.control, args.treatment, args.out, command, args.eval_seed))
+    print(write_pairing(args.control, args.treatment, args.out, command, args.eval_seed)[1])
     return 0
 
 
@@ -108,18 +108,19 @@ def write_pairing(
     command: str,
     eval_seed: int | None = None,
     name: str = "paired",
-) -> str:
+) -> tuple[dict, str]:
     """``out``/``name``.json and .md: ``compare`` and ``same_episodes`` of the two runs; returns
-    the page."""
+    what each file holds (the JSON record, the page)."""
     control = the_point(control_path, eval_seed)
     treatment = the_point(treatment_path, eval_seed)
     rows = compare(control, treatment)
     episodes = same_episodes(control, treatment)
     out.mkdir(parents=True, exist_ok=True)
-    record = dict(control=str(control_path), treatment=str(treatment_path), arenas=rows)
+    record = dict(agent=control.agent, control=str(control_path), treatment=str(treatment_path),
+                  arenas=rows)  # fmt: skip
     if episodes is not None:
         record["same_episodes"] = episodes
-    atomic_write_json(out / f"{name}.json", dict(agent=control.agent, **record))
+    atomic_write_json(out / f"{name}.json", record)
     table = "\n".join(writing.markdown_table(
         ("arena", "control success (%)", "treatment success (%)", "treatment − control", "verdict"),
         [(a, r["control"], r["treatment"], r["difference"], r["verdict"]) for a, r in rows.items()],
@@ -132,7 +133,7 @@ def write_pairing(
         f"{table}\n\n{_episodes_line(episodes)}Command: `{command}`\n"
     )
     (out / f"{name}.md").write_text(text)
-    return text
+    return record, text
 
 
 def _episodes_line(episodes: dict | None) -> str:

@@ -116,8 +116,9 @@ def main(argv=None) -> dict:
     pages = {}
     for name, control, treatment in PAIRS:
         if finished(out / control) and finished(out / treatment):
-            page = write_pairing(out / control, out / treatment, out, command, args.eval_seed, name)
-            pages[name] = json.loads((out / f"{name}.json").read_text())
+            pages[name], page = write_pairing(
+                out / control, out / treatment, out, command, args.eval_seed, name
+            )
             print(page, flush=True)
     return pages
 

@@ -38,6 +38,7 @@ a chunk holds them.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -128,8 +129,7 @@ def _masked(matrices: list[jax.Array], s: Structure) -> list[jax.Array]:
 
 def _build(critics: Any, s: Structure) -> list[jax.Array]:
     """fp32 augmented matrices of critics stacked on a leading axis (values placed exactly)."""
-    build = lambda c: gemm_layers.critic_matrices(c, jnp.float32, s.align)  # noqa: E731
-    return jax.vmap(build)(critics)
+    return jax.vmap(partial(gemm_layers.critic_matrices, dtype=jnp.float32, align=s.align))(critics)
 
 
 def _adam_states(opt_state: Any, convert: Callable[[Any, str], Any]) -> Any:
