@@ -42,7 +42,8 @@ from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import replay_sample
 from advisor_jax.bench import writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
-from advisor_jax.training.program import compiler_options, network_layout
+from advisor_jax.training.compiler import compiler_options
+from advisor_jax.training.program import network_layout
 
 KERNEL = network_layout("gpu")
 WITHOUT = KERNEL._replace(first_layer_kernel=False)

@@ -35,7 +35,8 @@ from advisor_jax.agent.config import HParams, preset
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.bench import writing
 from advisor_jax.bench.learner_loop import SMALL, fill_replay
-from advisor_jax.training.program import compiler_options, network_layout
+from advisor_jax.training.compiler import compiler_options
+from advisor_jax.training.program import network_layout
 from advisor_jax.training.train import make_train
 
 GPU_LAYOUT = network_layout("gpu")

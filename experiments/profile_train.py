@@ -49,7 +49,7 @@ from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.bench.trace import busy_us, hlo_instructions, instruction_of, kind_of, read_trace
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training import program as chunk_programs
+from advisor_jax.training import compiler
 from advisor_jax.training.devices import init_population, place, put
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import PROGRAMS, population_functions, resolve_program
@@ -160,7 +160,7 @@ def profile(cfg, hp, n_agents: int, trace_dir: Path, devices: int = 1, program="
     }  # fmt: skip
     per_step = lambda us: us / steps / n_dev  # noqa: E731
     # WHOLE_LOOPS as the compile read it (a profile may replace it to see the loop's kernels)
-    whole_loops = "WHILE" in chunk_programs.WHOLE_LOOPS["xla_gpu_enable_command_buffer"].split(",")
+    whole_loops = "WHILE" in compiler.WHOLE_LOOPS["xla_gpu_enable_command_buffer"].split(",")
     return dict(
         _hlo=hlo,
         agents=n_agents,

@@ -37,7 +37,7 @@ import numpy as np
 from advisor_jax.agent.config import preset
 from advisor_jax.bench import measure, writing
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.training import program
+from advisor_jax.training import compiler, program
 from advisor_jax.training.devices import place
 from advisor_jax.training.population import agent_keys, build_population
 from advisor_jax.training.program import population_functions
@@ -82,7 +82,7 @@ def fused_program(cfg, placement, name: str):
     separate = program.separates_outputs(name, cfg.agent.precision, per_device)
     if jax.default_backend() != "gpu" or not separate:
         return None
-    with mock.patch.object(program, "SEPARATE_OUTPUTS", {}):  # the options as before 4e52394
+    with mock.patch.object(compiler, "SEPARATE_OUTPUTS", {}):  # the options as before 4e52394
         return population_functions(cfg, placement, name)[2]
 
 

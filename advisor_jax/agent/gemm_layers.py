@@ -7,7 +7,7 @@ input of every hidden layer carries a column of ones, so the bias is a row of th
 matrix (the *augmented* matrix) and its gradient a row of the weight gradient; each layer
 writes the ones column of the next one itself (a matrix column that is 0 but for a 1 in the
 bias row: ``relu(1) = 1``). What follows the GEMM is then the ReLU alone, which cuBLASLt can
-run in the GEMM's epilogue (``training.program.compiler_options``); ``relu`` keeps the output
+run in the GEMM's epilogue (``training.compiler.compiler_options``); ``relu`` keeps the output
 as the residual of its backward, so the GEMM's result has no other reader.
 
 The critic's action joins after its first layer (``networks.JoinDense``: ``x @ K_x + a @ K_a

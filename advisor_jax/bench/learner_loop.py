@@ -10,12 +10,8 @@ from advisor_jax.agent.config import HParams
 from advisor_jax.agent.learner import make_learner
 from advisor_jax.agent.replay_buffer import Transition, replay_add, replay_init
 from advisor_jax.contract import spec
-from advisor_jax.training.program import (
-    PROGRAMS,
-    compiler_options,
-    holds_networks,
-    program_layout,
-)
+from advisor_jax.training.compiler import compiler_options
+from advisor_jax.training.program import PROGRAMS, holds_networks, program_layout
 
 SMALL = dict(actor_hidden=(64, 64), critic_state_hidden=128, critic_hidden=(128, 128),
              buffer_size=4096, batch_size=128)  # fmt: skip

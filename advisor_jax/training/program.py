@@ -16,8 +16,9 @@ leave open:
   (``agent/gemm_layers.py``), held target networks (``holds_networks``) and critics
   (``holds_critics``), summed heads (``sums_heads``), the widths' alignment
   (``ALIGNED_WIDTHS``) and the critic's first-layer kernel (``agent/masked_wgrad.py``);
-* the XLA options of the compiled chunk (``compiler_options``), which depend on the
-  learner's precision (``AgentConfig.precision``) and on the latency-bound program.
+* the XLA options of the compiled chunk (``training/compiler.py``: ``compiler_options``),
+  which depend on the learner's precision (``AgentConfig.precision``), on the latency-bound
+  program and on ``separates_outputs``.
 
 CPUs get XLA's defaults and the shared twin layout, so that CPU results stay bit for bit
 what they were. The measurements behind each choice are in ``results/`` (linked below).
@@ -25,13 +26,11 @@ what they were. The measurements behind each choice are in ``results/`` (linked 
 
 from __future__ import annotations
 
-import os
-import re
-
 import jax
 
 from advisor_jax.agent.config import TrainConfig
 from advisor_jax.agent.networks import Layout
+from advisor_jax.training.compiler import compiler_options
 from advisor_jax.training.devices import AXIS, Placement
 from advisor_jax.training.prior.trainer import make_prior_program
 from advisor_jax.training.train import make_train
@@ -53,72 +52,6 @@ STEADY_BF16_BYTES_PER_AGENT = int(1.25 * 45.84 / 512 * 2**30)
 """A ``paper``-size bf16 agent's share of a GPU's memory in the steady program on one GPU
 (``steady_fits``): the peak at 512 agents on an H100, 45.84 GiB (the general program's: 32.44),
 per agent, with a quarter more as margin (``results/bench_train_programs/``)."""
-
-CUBLAS_GEMMS = {"xla_gpu_enable_triton_gemm": False}
-"""XLA debug options that leave every GEMM to cuBLAS (no Triton GEMM fusions)."""
-
-OVERLAPPING_KERNELS = {"xla_gpu_command_buffer_scheduling_mode": "CONCURRENT"}
-"""CUDA graphs built by data dependence: independent kernels may run at the same time."""
-
-SEPARATE_OUTPUTS = {"xla_disable_hlo_passes": "multi_output_fusion"}
-"""XLA's multi-output fusion off (``separates_outputs``). It had put the update's minibatch draw
-into a kernel of the collection's noise (both read the step's key split), so each update
-waited for its step's collection (``results/bench_separate_outputs/``)."""
-
-COMMAND_BUFFER_DEFAULTS = (
-    "FUSION", "CUBLAS", "CUBLASLT", "CUSTOM_CALL", "CUDNN", "DYNAMIC_SLICE_FUSION", "CONDITIONAL"
-)  # fmt: skip
-"""What XLA records into CUDA graphs by default (``xla_gpu_enable_command_buffer``, jax
-0.11.2's XLA); an option replaces the list, so ``WHOLE_LOOPS`` repeats it."""
-
-WHOLE_LOOPS = {"xla_gpu_enable_command_buffer": ",".join((*COMMAND_BUFFER_DEFAULTS, "WHILE"))}
-"""The defaults and while loops: a scan without conditionals inside runs as one graph."""
-
-
-def compiler_options(
-    precision: str,
-    backend: str | None = None,
-    overlap: bool = False,
-    steady: bool = False,
-    separate: bool = False,
-) -> dict[str, bool | str] | None:
-    """``jax.jit``'s ``compiler_options`` for a program holding a ``precision`` learner on
-    ``backend`` (JAX's default when None); None: XLA's defaults (every CPU program). They
-    belong to one program: a user's ``XLA_FLAGS`` and other jitted functions are left alone.
-
-    On GPUs:
-
-    * ``overlap`` (a latency-bound program, ``latency_bound``): ``OVERLAPPING_KERNELS``. XLA's
-      CUDA graphs, by default one chain, built by data dependence: a 1-agent step's small
-      independent kernels (critic passes, advisor, env) run side by side; buffers are no
-      longer reused between kernels that may overlap: more memory.
-    * ``steady`` too (the program's loops hold no ``lax.cond``: the chunk's steady program,
-      the learner benchmark's block loop): ``WHOLE_LOOPS``, each scan one graph launched
-      once instead of one launch per step (``results/bench_train_steady/``).
-    * bf16: ``CUBLAS_GEMMS``. XLA's autotuner gave the bf16 matmuls to Triton fusions far
-      slower than cuBLAS (``results/profile_learner_bf16/``, ``results/bench_learner_cublas/``).
-    * ``separate`` (``separates_outputs``): ``SEPARATE_OUTPUTS``, after the passes that
-      ``XLA_FLAGS`` disables (a program's list replaces the process's).
-    * fp32, but for the latency-bound program (not measured so): ``CUBLAS_GEMMS`` too. The
-      autotuner gave a held target critic's GEMM to Triton; the 128-agent fp32 learner ran
-      1.03× faster on cuBLAS (``results/bench_first_layer_kernel/``).
-    """
-    backend = jax.default_backend() if backend is None else backend
-    if backend != "gpu":
-        return None
-    options: dict[str, bool | str] = {}
-    if overlap:
-        options.update(OVERLAPPING_KERNELS)
-        if steady:
-            options.update(WHOLE_LOOPS)
-    if precision == "bf16" or not overlap:
-        options.update(CUBLAS_GEMMS)
-    if separate:
-        options.update(SEPARATE_OUTPUTS)
-    if passes := options.get("xla_disable_hlo_passes"):
-        user = re.findall(r"--xla_disable_hlo_passes=(\S+)", os.environ.get("XLA_FLAGS", ""))
-        options["xla_disable_hlo_passes"] = ",".join((*user, passes))
-    return options or None
 
 
 def twin_inputs_per_critic(backend: str | None = None) -> bool:
@@ -251,8 +184,8 @@ def stores_free(program: str, agents_per_device: int | None = None) -> bool:
 
 def separates_outputs(program: str, precision: str, agents_per_device: int | None = None) -> bool:
     """Whether the chunk's ``program`` compiles without XLA's multi-output fusion
-    (``SEPARATE_OUTPUTS``): the latency-bound program of one or two bf16 agents per device
-    (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2, A B A (B): 1
+    (``compiler.SEPARATE_OUTPUTS``): the latency-bound program of one or two bf16 agents per
+    device (``agents_per_device``; None: unknown, not separate). One H100, jax 0.11.2, A B A (B): 1
     agent 1.13× (4,741 -> 5,370 / 5,385; 1.14× in another command), 2 agents 1.15× (7,252 /
     7,294 -> 8,334 / 8,388; 1.14× in another); 8 agents 0.95×, 64 agents 0.90×."""
     return program == "latency-bound" and precision == "bf16" and agents_per_device in (1, 2)

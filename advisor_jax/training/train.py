@@ -41,7 +41,7 @@ conditional inside, blocks of d steps written out in a row, the first with the a
 warm-up. One ``lax.cond`` per chunk picks it when the whole chunk is past warm-up and starts a
 delay period (``steady_at``). Both run the same operations on the same random streams
 (tests/training/test_steady_program.py, experiments/steady_parity.py). Without conditionals
-a GPU runs the whole loop as one graph of overlapping kernels (``program.compiler_options``).
+a GPU runs the whole loop as one graph of overlapping kernels (``compiler.compiler_options``).
 """
 
 from __future__ import annotations

@@ -93,5 +93,5 @@ def test_the_report_says_when_a_whole_loop_graph_hides_the_kernels():
     assert "The chunk's program: general." == lines("general", "device").strip()
     assert "not the kernels inside" in lines("latency-bound", "device")
     assert "not the kernels inside" not in lines("latency-bound", "host")  # no GPU: nothing hidden
-    # a profile that took WHILE out of program.WHOLE_LOOPS traced the loop's kernels
+    # a profile that took WHILE out of compiler.WHOLE_LOOPS traced the loop's kernels
     assert "not the kernels inside" not in lines("latency-bound", "device", False)

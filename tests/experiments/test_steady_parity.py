@@ -7,7 +7,7 @@ import jax
 import numpy as np
 
 from advisor_jax.agent.config import preset
-from advisor_jax.training import program
+from advisor_jax.training import compiler, program
 from advisor_jax.training.devices import place
 from tests.experiments.scripts import load_script
 
@@ -31,7 +31,7 @@ def test_fused_program_only_where_training_separates_outputs(monkeypatch):
     real = program.compiler_options
 
     def spy(*args, **kwargs):
-        seen.append((kwargs.get("separate"), dict(program.SEPARATE_OUTPUTS)))
+        seen.append((kwargs.get("separate"), dict(compiler.SEPARATE_OUTPUTS)))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
@@ -39,4 +39,4 @@ def test_fused_program_only_where_training_separates_outputs(monkeypatch):
     assert parity.fused_program(cfg, place(3, 1), "latency-bound") is None  # 3 agents: fused
     assert parity.fused_program(cfg, place(1, 1), "latency-bound") is not None
     assert seen == [(True, {})]  # built as training builds it, with the fusion left on
-    assert program.SEPARATE_OUTPUTS == {"xla_disable_hlo_passes": "multi_output_fusion"}
+    assert compiler.SEPARATE_OUTPUTS == {"xla_disable_hlo_passes": "multi_output_fusion"}

@@ -1,4 +1,4 @@
-"""The XLA compile options of programs that hold a learner (training/program.py).
+"""The XLA compile options of programs that hold a learner (training/compiler.py).
 
 On GPUs a latency-bound program (a small population) overlaps independent kernels, and one
 without conditionals in its loops (``steady``) also runs them as whole CUDA graphs; a bf16
@@ -20,15 +20,15 @@ import pytest
 
 from advisor_jax.agent.config import HParams
 from advisor_jax.training import program
-from advisor_jax.training.devices import place
-from advisor_jax.training.population import agent_keys, build_population
-from advisor_jax.training.program import (
+from advisor_jax.training.compiler import (
     CUBLAS_GEMMS,
     OVERLAPPING_KERNELS,
     SEPARATE_OUTPUTS,
     WHOLE_LOOPS,
     compiler_options,
 )
+from advisor_jax.training.devices import place
+from advisor_jax.training.population import agent_keys, build_population
 from tests.training.conftest import TINY
 
 
