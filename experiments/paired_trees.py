@@ -20,8 +20,9 @@ Everything after ``--`` goes to ``advisor-jax train`` as given (all but ``--out`
 trains in a process of its own whose imports resolve to its checkout (run in that folder),
 one after another, into OUT/<side>/, with OUT/<side>/command.json naming the checkout and
 its commit. A side whose run.json says finished is kept, not trained again, so that a later
-call (with OUT copied back) goes on where an earlier one stopped; ``--sides`` trains only
-those named. Then every pair whose two runs are there is written: OUT/paired.{md,json}
+call (with OUT copied back) goes on where an earlier one stopped, if it gives the same train
+options (a finished side trained with others is refused); ``--sides`` trains only those
+named. Then every pair whose two runs are there is written: OUT/paired.{md,json}
 (TREATMENT − CONTROL) and OUT/paired_null.{md,json} (TREATMENT_AGAIN − TREATMENT).
 """
 
@@ -65,6 +66,28 @@ def commit_of(tree: Path) -> str | None:
     return lines[1]
 
 
+def trained_with(run: Path) -> list[str] | None:
+    """The ``advisor-jax train`` options ``run`` was trained with (its command.json, less
+    ``--out``), or None where it names none."""
+    path = run / "command.json"
+    if not path.is_file():
+        return None
+    words = shlex.split(json.loads(path.read_text())["command"])[2:]  # past `advisor-jax train`
+    return words[:-2] if words[-2:-1] == ["--out"] else words
+
+
+def check_kept(out: Path, train_args: list[str]) -> None:
+    """Refuse finished sides in ``out`` trained with other options than ``train_args``: a page
+    would pair them under this command (another seed count, another preset)."""
+    for side in SIDES:
+        if finished(out / side) and (got := trained_with(out / side)) != train_args:
+            was = "options it does not record" if got is None else f"`{shlex.join(got)}`"
+            raise SystemExit(
+                f"{out / side} was trained with {was}, not `{shlex.join(train_args)}`: give its "
+                "options after `--`, or another --out"
+            )
+
+
 def train(tree: Path, train_args: list[str], run: Path) -> None:
     """``advisor-jax train TRAIN_ARGS --out RUN`` with ``tree``'s code, and its command.json."""
     if run.exists() and any(run.iterdir()):
@@ -106,6 +129,7 @@ def main(argv=None) -> dict:
     trees = dict(control=reference, treatment=HERE, treatment_again=HERE)
     wanted = args.sides or [s for s in SIDES if args.null or s != "treatment_again"]
     out = args.out.resolve()
+    check_kept(out, train_args)
     for side in wanted:
         if finished(out / side):
             print(f"{side}: finished in {out / side}, kept", flush=True)

@@ -51,8 +51,8 @@ def test_the_control_trains_with_the_reference_and_the_finished_sides_are_paired
     record = json.loads((control / "command.json").read_text())
     assert record["checkout"] == str(tree.resolve()) and record["commit"] is None
 
-    # the treatment as a copy of the same run: finished, so kept and not trained
-    shutil.copytree(KEPT_RUN, out / "treatment")
+    # the treatment as a copy of the same run, trained with these options: kept, not trained
+    shutil.copytree(control, out / "treatment")
     pages = paired_trees.main([*options, "--", *train])
     assert set(pages) == {"paired"}  # no --null: no second treatment, no null pairing
     arenas = pages["paired"]["arenas"]
@@ -61,6 +61,20 @@ def test_the_control_trains_with_the_reference_and_the_finished_sides_are_paired
         assert set(arena["differences"]) == {0.0}
     assert pages["paired"]["same_episodes"]["identical_seeds"] == arenas["training"]["seeds"]
     assert "experiments/paired_trees.py" in (out / "paired.md").read_text()
+
+
+def test_a_finished_side_trained_with_other_options_is_refused_not_paired(tmp_path):
+    tree, out = _reference(tmp_path / "ref"), tmp_path / "out"
+    options = ["--reference", str(tree), "--out", str(out)]
+    paired_trees.main([*options, "--sides", "control", "--", "--preset", "stable", "--seeds", "4"])
+    shutil.copytree(out / "control", out / "treatment")
+    with pytest.raises(SystemExit, match="was trained with `--preset stable --seeds 4`, not "
+                                         "`--preset stable --seeds 8`"):  # fmt: skip
+        paired_trees.main([*options, "--", "--preset", "stable", "--seeds", "8"])
+    assert not (out / "paired.md").exists()
+    (out / "treatment" / "command.json").unlink()  # a finished run that names no options
+    with pytest.raises(SystemExit, match="treatment was trained with options it does not record"):
+        paired_trees.main([*options, "--", "--preset", "stable", "--seeds", "4"])
 
 
 def test_an_unfinished_side_is_named_not_overwritten(tmp_path):
