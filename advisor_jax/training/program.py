@@ -134,10 +134,16 @@ def sums_heads(program: str, agents_per_device: int | None = None) -> bool:
 
 
 ALIGNED_WIDTHS = 32
-"""``Layout.hidden_align`` of bf16 learners in the latency-bound program of more than
-``LATENCY_BOUND_AGENTS`` agents per device (paper sizes: critic 24 → 1024 → 512 → 608, actor
-24 → 608 → 320). 64 agents, one H100, a process each in one command, align 8, 64, 32, 8:
-17,256, 18,256, 18,209, 17,253 agent env-steps/s (``results/bench_width_align/``)."""
+"""``Layout.hidden_align`` of bf16 learners in the latency-bound program of at least
+``ALIGNED_FROM_AGENTS`` agents per device (paper sizes: critic 24 → 1024 → 512 → 608, actor
+24 → 608 → 320). One H100, jax 0.11.2, a process each, align 8 against 32 in agent env-steps/s
+(``results/bench_width_align/``): 64 agents (8, 64, 32, 8) 17,256, 18,256, 18,209, 17,253; 32
+agents 16,093 → 16,911 (1.051×); 16 agents 15,180 → 16,006 (1.054×). 48 seeds of ``stable``
+trained every episode the same at 8 and at 32 (``results/precision_study/width_align_48/``)."""
+
+ALIGNED_FROM_AGENTS = 16
+"""The fewest agents per device whose widths are aligned to ``ALIGNED_WIDTHS``: the smallest
+population measured (fewer keep 8 until measured)."""
 
 
 def program_layout(
@@ -151,7 +157,7 @@ def program_layout(
     gemm = layout.layers_in_gemm
     held = gemm and holds_critics(program, precision, agents_per_device)
     heads = gemm and sums_heads(program, agents_per_device)
-    wide = agents_per_device is not None and agents_per_device > LATENCY_BOUND_AGENTS
+    wide = agents_per_device is not None and agents_per_device >= ALIGNED_FROM_AGENTS
     wide = gemm and wide and (program, precision) == ("latency-bound", "bf16")
     align = ALIGNED_WIDTHS if wide else layout.hidden_align
     return layout._replace(held_critics=held, head_sums=heads, hidden_align=align)

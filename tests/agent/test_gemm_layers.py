@@ -237,14 +237,14 @@ def test_wider_hidden_alignment_pads_the_wide_layers_and_keeps_the_function(nets
         assert max_relative_difference(got_grad, want_grad) < 1e-4
 
 
-def test_bf16_latency_bound_populations_above_32_agents_align_their_widths_to_32():
+def test_bf16_latency_bound_populations_of_16_agents_or_more_align_their_widths_to_32():
     from advisor_jax.training import program
 
     for name in program.PROGRAMS:
         for precision in ("fp32", "bf16"):
-            for agents in (1, program.LATENCY_BOUND_AGENTS, 33, 64, None):
+            for agents in (1, 2, 15, 16, 32, 33, 64, None):
                 got = program.program_layout(name, precision, "gpu", agents_per_device=agents)
-                wide = (name, precision) == ("latency-bound", "bf16") and (agents or 0) > 32
+                wide = (name, precision) == ("latency-bound", "bf16") and (agents or 0) >= 16
                 assert got.hidden_align == (program.ALIGNED_WIDTHS if wide else 8), (name, agents)
             assert program.program_layout(name, precision, "cpu", 64).hidden_align == 8
-    assert program.ALIGNED_WIDTHS == 32
+    assert (program.ALIGNED_WIDTHS, program.ALIGNED_FROM_AGENTS) == (32, 16)
