@@ -125,7 +125,7 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
         )
     console.print(table)
     for line in plan.explained:
-        console.print(f"  {line}", highlight=False)
+        console.print(f"  {line}", highlight=False, markup=False)
     finished = sweep.finished_pieces(out, plan)
     makespan = plan.makespan(skip=finished)
     if makespan is None:

@@ -59,6 +59,7 @@ def train_command(args: TrainArgs) -> None:
             eval_episodes=args.eval_episodes,
             eval_arenas=arenas,
             checkpoint_every=args.checkpoint_every,
+            drop_checkpoints=args.drop_checkpoints,
             resume=args.resume,
             progress=not args.no_progress,
             meta={"preset": args.preset},  # run_training records the program it builds

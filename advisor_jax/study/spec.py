@@ -9,6 +9,7 @@
     eval_seed = 0                    # every agent of the study on the same episodes
     eval_episodes = 100              # per evaluation arena
     # eval_arenas = ["training", "validation"], checkpoint_every = 10 (chunks), eval_advisor
+    # drop_checkpoints = true          # a finished piece keeps params/, not its replay buffers
 
     [static]                         # settings with their own compile; a list sweeps them
     episodes = [100, 200, 300, 400, 500]
@@ -82,6 +83,7 @@ STUDY_KEYS = {
     "eval_episodes": int,
     "eval_arenas": list,
     "checkpoint_every": int,
+    "drop_checkpoints": bool,
     "eval_advisor": bool,
     "description": str,
 }
@@ -116,6 +118,7 @@ class Study:
     checkpoint_every: int
     groups: tuple[Group, ...]
     eval_advisor: bool = False
+    drop_checkpoints: bool = False
 
     def args(self, group: Group) -> TrainArgs:
         """``advisor-jax train``'s options for ``group``: its static settings, and as ``--hp``
@@ -136,6 +139,7 @@ class Study:
             eval_episodes=self.eval_episodes,
             eval_arenas=self.eval_arenas,
             checkpoint_every=self.checkpoint_every,
+            drop_checkpoints=self.drop_checkpoints,
             eval_advisor=self.eval_advisor,
             hp=tuple(f"{k}={v!r}" for k, v in hp.items()),
             **static,
@@ -240,6 +244,7 @@ def _study(path: Path, raw: dict) -> Study:
         checkpoint_every=head.get("checkpoint_every", 10),
         groups=(),
         eval_advisor=head.get("eval_advisor", False),
+        drop_checkpoints=head.get("drop_checkpoints", False),
     )
     groups = []
     for agent in agents:

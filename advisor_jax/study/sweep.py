@@ -126,6 +126,7 @@ def run_piece(study: Study, out: Path, plan: Plan, index: int, progress: bool = 
         eval_arenas=arenas,
         eval_seed=study.eval_seed,
         checkpoint_every=study.checkpoint_every,
+        drop_checkpoints=study.drop_checkpoints,
         eval_advisor=study.eval_advisor,
         resume=status is not None,
         progress=progress,

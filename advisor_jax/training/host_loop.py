@@ -10,6 +10,8 @@ that ``resume=True`` continues an interrupted run. At the end it writes, into ``
 
     run.json          config, agents (seed + hyperparameters), status, timings, device
     params/           orbax: final actor, critics and targets of every agent (leading axis)
+    checkpoints/      orbax: the last full state, to resume from (``drop_checkpoints``: deleted
+                      once the run is finished)
     metrics.npz       per agent × episode: outcome, length, return, reward per step,
                       collision speed, actor firing rate, Eq. (11) expected maximum;
                       per agent × chunk: ``log/<metric>``, the train log's series
@@ -27,7 +29,8 @@ only an empty one, and every saved directory records the run it belongs to (``ru
 episodes so far. ``resume=True`` of a run killed before its first checkpoint starts it
 afresh, one whose newest checkpoint is corrupt resumes from the previous good one
 (``checkpoint.restore_latest``), saying so, one stopped after its training (during the final
-evaluation) only finishes it, and a finished run is left as it is.
+evaluation) only finishes it, and a finished run is left as it is (but for its
+checkpoints/ under ``drop_checkpoints``).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import dataclasses
 import datetime
 import json
 import os
+import shutil
 import signal
 import time
 from collections.abc import Mapping, Sequence
@@ -95,6 +99,7 @@ def run_training(
     eval_episodes: int = 100,
     eval_arenas: Sequence[str] = ("training", "validation"),
     checkpoint_every: int = 10,
+    drop_checkpoints: bool = False,
     resume: bool = False,
     progress: bool = True,
     console: Console | None = None,
@@ -127,6 +132,8 @@ def run_training(
     ``tracker`` (``tracking.make_tracker``) also receives every chunk's log row.
     ``eval_advisor``: also evaluate each agent's advisor alone (under its quality knobs) on
     the same episodes: eval_advisor.json (``run_outputs.evaluate_advisor``).
+    ``drop_checkpoints``: once the run is finished (this call's or an earlier one's), delete
+    ``out_dir/checkpoints`` (``drop_finished_checkpoints``).
     """
     console = console or Console(stderr=True)
     if not os.fspath(out_dir).strip():  # Path("") is ".": it would train into the cwd
@@ -175,7 +182,22 @@ def run_training(
             console=console, meta=meta, program=program, placement=placement,
             eval_from=eval_from, tracker=tracker, eval_advisor=eval_advisor,
         )  # fmt: skip
-        return _train_locked(plan, stop)
+        summary = _train_locked(plan, stop)
+        if drop_checkpoints and is_writer():
+            drop_finished_checkpoints(out_dir, summary, console)
+        return summary
+
+
+def drop_finished_checkpoints(out_dir: Path, summary: Mapping, console: Console) -> None:
+    """Deletes ``out_dir/checkpoints`` of a finished run (``summary``, as run.json records
+    it): they serve only to resume, which a finished run never does. The networks stay in
+    params/. A run that is not finished keeps them."""
+    checkpoints = out_dir / "checkpoints"
+    if summary.get("status") != "finished" or not checkpoints.exists():
+        return
+    shutil.rmtree(checkpoints)
+    console.print(f"removed {checkpoints} (--drop-checkpoints: a finished run does not resume; "
+                  "its networks are in params/)")  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -264,8 +286,8 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
     if resume:
         saved = run_state.resume_record(run_file, summary)  # the same run, or ValueError
         if saved["status"] == "finished":
-            console.print(f"{out_dir} is a finished run: nothing to resume (its files are as "
-                          "they were)")  # fmt: skip
+            console.print(f"{out_dir} is a finished run: nothing to resume (its results are "
+                          "as they were)")  # fmt: skip
             return saved
         seconds_before = saved.get("train_seconds") or 0.0
         if checkpoint.has_checkpoints(out_dir / "checkpoints"):

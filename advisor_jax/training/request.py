@@ -151,6 +151,10 @@ class TrainArgs:
     are to be pooled the same one: their agents are then evaluated on the same episodes."""
     checkpoint_every: int = 10
     """Write a resumable checkpoint every this many chunks (0 = only at the end)."""
+    drop_checkpoints: bool = False
+    """Once the run has finished (parameters and evaluation written), delete its checkpoints/:
+    a finished run never resumes, and its last checkpoint holds every agent's replay buffer
+    and optimizer state (48 `stable` agents: 843 MiB, where params/ holds 362 MiB)."""
     resume: bool = False
     """Continue the interrupted run in --out from its last checkpoint."""
     no_progress: bool = False

@@ -45,6 +45,41 @@ def test_dry_run_prints_the_plan_and_writes_nothing(study_file, tmp_path, capsys
     assert not out.exists()
 
 
+def test_dry_run_says_what_the_runs_keep_on_disk_and_drop_checkpoints_reaches_them(
+    study_file, tmp_path, capsys, monkeypatch
+):
+    from advisor_jax.study import plan as planning
+
+    study = load_study(study_file)
+    memory = [planning.agent_memory(study.config(g)[0]) for g in study.groups]
+    agents = [2, 4]  # DDPG: 2 seeds; ADDPG+AfD: 2 seeds × 2 points
+    state = sum(n * (m["replay"] + m["networks"]) for n, m in zip(agents, memory, strict=True))
+    main(["sweep", str(study_file), "--out", str(tmp_path / "a"), "--dry-run"])
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"checkpoints/ at most {state / 1e6:.0f} MB in all" in err
+    assert "drop_checkpoints = true in [study] deletes them" in err  # printed, not markup
+
+    dropping = tmp_path / "dropping.toml"
+    dropping.write_text(
+        study_file.read_text().replace("seeds = 2", "seeds = 2\ndrop_checkpoints = true")
+    )
+    main(["sweep", str(dropping), "--out", str(tmp_path / "b"), "--dry-run"])
+    assert "checkpoints/ deleted as each piece finishes" in " ".join(
+        capsys.readouterr().err.split()
+    )
+    kept = load_study(dropping)
+    assert kept.drop_checkpoints and kept.args(kept.groups[0]).drop_checkpoints
+    assert not study.drop_checkpoints and not study.args(study.groups[0]).drop_checkpoints
+
+    calls = []  # a piece trains with the study's choice
+    monkeypatch.setattr(
+        "advisor_jax.training.host_loop.run_training", lambda *a, **k: calls.append(k)
+    )
+    plan = planning.plan_study(kept, planning.local_devices()[0])
+    sweep.run_piece(kept, tmp_path / "b", plan, 0, progress=False)
+    assert calls[0]["drop_checkpoints"] is True
+
+
 def test_the_planning_process_keeps_jax_off_the_gpus(study_file, tmp_path, monkeypatch):
     """The process that plans and starts workers checks the studies on the CPU: on a GPU it
     would otherwise take the memory planned for its workers (JAX preallocates on first use)."""

@@ -222,6 +222,30 @@ def test_resume_of_a_finished_run_says_so_and_changes_nothing(
     assert f"{out} is a finished run: nothing to resume" in err
 
 
+def test_drop_checkpoints_deletes_them_once_the_run_is_finished_and_keeps_the_results(
+    straight_run, tmp_path, capsys, tiny_functions
+):
+    import shutil
+
+    out = tmp_path / "run"  # trained with them dropped: the same results, no checkpoints/
+    train_tiny(out, with_step_bound(tiny_functions), drop_checkpoints=True)
+    assert not (out / "checkpoints").exists() and (straight_run / "checkpoints").is_dir()
+    assert_same_params(out, straight_run)
+    assert_same_metrics(out, straight_run)
+    assert "removed" in capsys.readouterr().err
+
+    kept = tmp_path / "kept"  # a finished run resumed with the option: only checkpoints/ goes
+    shutil.copytree(straight_run, kept)
+    before = {k: v for k, v in _snapshot(kept).items() if not k.startswith("checkpoints/")}
+    train_tiny(kept, with_step_bound(tiny_functions), resume=True, drop_checkpoints=True)
+    assert _snapshot(kept) == before
+
+    summary = json.loads((kept / "run.json").read_text())  # not finished: kept
+    (kept / "checkpoints").mkdir()
+    host_loop.drop_finished_checkpoints(kept, {**summary, "status": "interrupted"}, None)
+    assert (kept / "checkpoints").is_dir()
+
+
 @pytest.fixture(scope="module")
 def tiny_evaluators():
     return {
