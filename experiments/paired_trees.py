@@ -12,7 +12,7 @@ yardstick the first pairing is read against.
 
     python experiments/paired_trees.py --reference /tmp/ref --out OUT -- \\
         --preset stable --agent ATD3+AfDP --seeds 32 --seed 200 --precision bf16 \\
-        --eval-episodes 50 --checkpoint-every 0 --no-progress
+        --eval-episodes 50 --checkpoint-every 0 --drop-checkpoints --no-progress
     python experiments/paired_trees.py --reference /tmp/ref --null --sides treatment_again \\
         --out OUT -- ...                   # the null's second run, in a later command
 
@@ -24,6 +24,11 @@ call (with OUT copied back) goes on where an earlier one stopped, if it gives th
 options (a finished side trained with others is refused); ``--sides`` trains only those
 named. Then every pair whose two runs are there is written: OUT/paired.{md,json}
 (TREATMENT − CONTROL) and OUT/paired_null.{md,json} (TREATMENT_AGAIN − TREATMENT).
+
+A pairing reads each side's run.json, eval.json and metrics.npz; ``--drop-checkpoints`` spares
+the disk (and a copy back from another machine) each side's replay buffers: 843 MiB at 48
+``stable`` agents, where the pairing's files are about 1 MB. Both checkouts must know every
+option given: a reference older than commit 7495866 refuses ``--drop-checkpoints``.
 """
 
 from __future__ import annotations
