@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 from pathlib import Path
 from typing import Annotated
 
@@ -127,6 +128,7 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
     for line in plan.explained:
         console.print(f"  {line}", highlight=False, markup=False)
     finished = sweep.finished_pieces(out, plan)
+    _warn_if_the_disk_is_short(console, study, plan, out, finished)
     makespan = plan.makespan(skip=finished)
     if makespan is None:
         console.print("  estimated time: unknown (see above)")
@@ -138,6 +140,27 @@ def print_plan(console: Console, study, plan, out: Path, kept: bool) -> None:
             f"{plan.devices} device(s), longest pieces first",
             highlight=False,
         )
+
+
+def _warn_if_the_disk_is_short(console, study, plan, out: Path, finished) -> None:
+    """A warning where the unfinished pieces' runs may keep more than ``out``'s filesystem
+    has free (``planning.kept_on_disk``: checkpoints/ counted at their bound)."""
+    agents = [0] * len(study.groups)
+    for piece in plan.pieces:
+        if piece.index not in finished:
+            agents[piece.group] += piece.agents
+    configs = [study.config(g)[0] for g in study.groups]
+    need = sum(planning.kept_on_disk(study, configs, agents))
+    there = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
+    free = shutil.disk_usage(there).free
+    if need > free:
+        console.print(
+            f"  warning: the unfinished pieces' runs may keep up to {planning.size_text(need)} "
+            f"on disk, and {there} has {planning.size_text(free)} free"
+            + ("" if study.drop_checkpoints else " (drop_checkpoints = true in [study] keeps "
+               "only params/)"),
+            style="yellow", highlight=False, markup=False,
+        )  # fmt: skip
 
 
 def _check(args: SweepArgs, studies: list) -> None:

@@ -268,25 +268,33 @@ def plan_study(
     return Plan(study.digest, device, devices, tuple(caps), tuple(pieces), explained, max_agents)
 
 
-def _disk_line(study, configs) -> str:
-    """What the finished runs keep on disk: params/ (the networks) and, unless the study drops
-    them, checkpoints/ (replay buffers and optimizer states), bounded by ``agent_memory``'s
-    replay and networks (a buffer's unfilled rows cost little on disk: 48 ``stable`` agents'
-    checkpoints/ took 843 MiB, 18.4 MB per agent against this bound's 55.2; their params/
-    362 MiB, 7.9 MB per agent against 7.4 here)."""
-    agents = [len(study.seeds) * len(g.points or [{}]) for g in study.groups]
+def kept_on_disk(study, configs, agents) -> tuple[int, int]:
+    """Bytes that finished runs of ``agents[i]`` agents of each group (``configs[i]``) keep:
+    (params/, the networks; checkpoints/, replay buffers and optimizer states, 0 where the
+    study drops them). params/ is about 4 bytes a parameter; checkpoints/ is bounded by
+    ``agent_memory``'s replay and networks (a buffer's unfilled rows cost little on disk: 48
+    ``stable`` agents' checkpoints/ took 843 MiB, 18.4 MB per agent against this bound's
+    55.2; their params/ 362 MiB, 7.9 MB per agent against 7.4 here)."""
     parts = [agent_memory(cfg) for cfg in configs]
     params = sum(n * m["parameters"] * 4 for n, m in zip(agents, parts, strict=True))
-    if study.drop_checkpoints:
-        return (f"disk: params/ about {_size(params)} in all; checkpoints/ deleted as each "
-                "piece finishes (drop_checkpoints)")  # fmt: skip
     state = sum(n * (m["replay"] + m["networks"]) for n, m in zip(agents, parts, strict=True))
-    return (f"disk: params/ about {_size(params)} and checkpoints/ at most {_size(state)} in "
-            "all (replay buffers; drop_checkpoints = true in [study] deletes them as each "
-            "piece finishes)")  # fmt: skip
+    return params, 0 if study.drop_checkpoints else state
 
 
-def _size(n: float) -> str:
+def _disk_line(study, configs) -> str:
+    """What the finished runs keep on disk (``kept_on_disk``)."""
+    agents = [len(study.seeds) * len(g.points or [{}]) for g in study.groups]
+    params, state = kept_on_disk(study, configs, agents)
+    if study.drop_checkpoints:
+        return (f"disk: params/ about {size_text(params)} in all; checkpoints/ deleted as each "
+                "piece finishes (drop_checkpoints)")  # fmt: skip
+    return (f"disk: params/ about {size_text(params)} and checkpoints/ at most "
+            f"{size_text(state)} in all (replay buffers; drop_checkpoints = true in [study] "
+            "deletes them as each piece finishes)")  # fmt: skip
+
+
+def size_text(n: float) -> str:
+    """``n`` bytes as "41 MB" or "6.8 GB"."""
     return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.0f} MB"
 
 

@@ -80,6 +80,29 @@ def test_dry_run_says_what_the_runs_keep_on_disk_and_drop_checkpoints_reaches_th
     assert calls[0]["drop_checkpoints"] is True
 
 
+def test_a_disk_too_small_for_the_runs_is_a_warning_naming_both_sizes(
+    study_file, tmp_path, capsys, monkeypatch
+):
+    from collections import namedtuple
+
+    from advisor_jax.cli import sweep as sweep_cli
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(sweep_cli.shutil, "disk_usage", lambda path: usage(0, 0, 10**9))
+    main(["sweep", str(study_file), "--out", str(tmp_path / "a" / "b"), "--dry-run"])
+    assert "warning" not in capsys.readouterr().err  # 6 quick agents: about 30 MB
+
+    seen = []
+    monkeypatch.setattr(
+        sweep_cli.shutil, "disk_usage", lambda path: seen.append(path) or usage(0, 0, 5 * 10**6)
+    )
+    main(["sweep", str(study_file), "--out", str(tmp_path / "a" / "b"), "--dry-run"])
+    err = " ".join(capsys.readouterr().err.split())
+    assert re.search(r"warning: the unfinished pieces' runs may keep up to \d+ MB on disk", err)
+    assert f"{tmp_path} has 5 MB free (drop_checkpoints = true in [study]" in err
+    assert seen == [tmp_path]  # the nearest folder that exists
+
+
 def test_the_planning_process_keeps_jax_off_the_gpus(study_file, tmp_path, monkeypatch):
     """The process that plans and starts workers checks the studies on the CPU: on a GPU it
     would otherwise take the memory planned for its workers (JAX preallocates on first use)."""
