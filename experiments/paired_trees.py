@@ -16,14 +16,15 @@ yardstick the first pairing is read against.
     python experiments/paired_trees.py --reference /tmp/ref --null --sides treatment_again \\
         --out OUT -- ...                   # the null's second run, in a later command
 
-Everything after ``--`` goes to ``advisor-jax train`` as given (all but ``--out``). Each side
-trains in a process of its own whose imports resolve to its checkout (run in that folder),
-one after another, into OUT/<side>/, with OUT/<side>/command.json naming the checkout and
-its commit. A side whose run.json says finished is kept, not trained again, so that a later
-call (with OUT copied back) goes on where an earlier one stopped, if it gives the same train
-options (a finished side trained with others is refused); ``--sides`` trains only those
-named. Then every pair whose two runs are there is written: OUT/paired.{md,json}
-(TREATMENT − CONTROL) and OUT/paired_null.{md,json} (TREATMENT_AGAIN − TREATMENT).
+Everything after ``--`` goes to ``advisor-jax train`` as given (all but ``--out``). Each
+side trains in a process of its own whose imports resolve to its checkout (relative paths in
+the options are read from the folder this runs in), one after another, into OUT/<side>/,
+with OUT/<side>/command.json naming the checkout and its commit. A side whose run.json says
+finished is kept, not trained again, so that a later call (with OUT copied back) goes on
+where an earlier one stopped, if it gives the same train options (a finished side trained
+with others is refused); ``--sides`` trains only those named. Then every pair whose two runs
+are there is written: OUT/paired.{md,json} (TREATMENT − CONTROL) and
+OUT/paired_null.{md,json} (TREATMENT_AGAIN − TREATMENT).
 
 A pairing reads each side's run.json, eval.json and metrics.npz; ``--drop-checkpoints`` spares
 the disk (and a copy back from another machine) each side's replay buffers: 843 MiB at 48
@@ -101,8 +102,10 @@ def train(tree: Path, train_args: list[str], run: Path) -> None:
             f"--out {run}` in {tree}, or move it away"
         )
     started = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
-    command = [sys.executable, "-c", TRAIN, "train", *train_args, "--out", str(run)]
-    subprocess.run(command, check=True, env=measure.checkout_env(tree), cwd=tree)
+    # -P: the working folder is not put on the import path, so PYTHONPATH's checkout comes
+    # first and the process stays here, where relative paths in TRAIN_ARGS were written.
+    command = [sys.executable, "-P", "-c", TRAIN, "train", *train_args, "--out", str(run)]
+    subprocess.run(command, check=True, env=measure.checkout_env(tree))
     record = dict(
         command=shlex.join(["advisor-jax", "train", *train_args, "--out", str(run)]),
         checkout=str(tree), commit=commit_of(tree), created=started,

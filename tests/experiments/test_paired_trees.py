@@ -27,6 +27,7 @@ def main():
     shutil.copytree({str(KEPT_RUN)!r}, out, dirs_exist_ok=True)
     (out / "imported_from.txt").write_text(advisor_jax.__file__)
     (out / "argv.txt").write_text(" ".join(sys.argv[1:]))
+    (out / "cwd.txt").write_text(str(Path.cwd()))
 """
 
 
@@ -47,6 +48,7 @@ def test_the_control_trains_with_the_reference_and_the_finished_sides_are_paired
     control = out / "control"
     imported = Path((control / "imported_from.txt").read_text()).resolve()
     assert imported == (tree / "advisor_jax" / "__init__.py").resolve()
+    assert (control / "cwd.txt").read_text() == str(Path.cwd())  # where relative paths were written
     assert (control / "argv.txt").read_text() == f"train {' '.join(train)} --out {control}"
     record = json.loads((control / "command.json").read_text())
     assert record["checkout"] == str(tree.resolve()) and record["commit"] is None
