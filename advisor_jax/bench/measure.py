@@ -231,8 +231,9 @@ def run_reference(tree: str | os.PathLike, script: str, argv: Sequence[str], rep
 
 def checkout_env(tree: str | os.PathLike) -> dict[str, str]:
     """This process's environment with ``PYTHONPATH`` led by the checkout ``tree`` and without
-    this checkout: a subprocess started with it (in a folder outside this checkout) imports
-    ``tree``'s ``advisor_jax``."""
+    this checkout: a subprocess started with it imports ``tree``'s ``advisor_jax`` when its
+    working folder is not on its import path (a folder outside this checkout, or ``python
+    -P``: ``paired_trees.py``)."""
     here = Path(__file__).resolve().parents[2]  # this checkout
     paths = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     paths = [str(Path(tree).resolve())] + [p for p in paths if Path(p).resolve() != here]
