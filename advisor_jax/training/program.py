@@ -139,7 +139,8 @@ ALIGNED_WIDTHS = 32
 24 → 608 → 320). One H100, jax 0.11.2, a process each, align 8 against 32 in agent env-steps/s
 (``results/bench_width_align/``): 64 agents (8, 64, 32, 8) 17,256, 18,256, 18,209, 17,253; 32
 agents 16,093 → 16,911 (1.051×); 16 agents 15,180 → 16,006 (1.054×). 48 seeds of ``stable``
-trained every episode the same at 8 and at 32 (``results/precision_study/width_align_48/``)."""
+trained every episode the same at 8 and at 32; 32 seeds moved no more than one program moves
+between two processes (``results/precision_study/width_align/``)."""
 
 ALIGNED_FROM_AGENTS = 16
 """The fewest agents per device whose widths are aligned to ``ALIGNED_WIDTHS``: the smallest
