@@ -16,12 +16,14 @@ Writes ``paired.md`` and ``paired.json`` into ``--out``; refuses runs whose sett
 seeds or evaluation episodes differ. Where both runs kept metrics.npz, it also counts the
 seeds whose training episodes were the same, episode for episode (``same_episodes``): a change
 that computes exactly what it replaced shows there, where the interval can only say "not
-resolved".
+resolved". Where both run.json record ``agent_params_sha256`` (from 2026-12-08), it counts the
+seeds whose final networks are equal bit for bit (``same_networks``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -88,6 +90,30 @@ def same_episodes(control: Point, treatment: Point) -> dict | None:
     return dict(arrays=list(EPISODE_ARRAYS), seeds=len(seeds), identical_seeds=same)
 
 
+def networks_by_seed(path: Path) -> dict[int, str] | None:
+    """Each seed's final networks' sha256 (run.json's ``agent_params_sha256``) in the runs
+    below ``path``; None where a run does not record them (versions before 2026-12-08)."""
+    found = {}
+    for run_file in sorted(path.rglob("run.json")):
+        run = json.loads(run_file.read_text())
+        if "agent_params_sha256" not in run:
+            return None
+        found |= dict(
+            zip((a["seed"] for a in run["agents"]), run["agent_params_sha256"], strict=True)
+        )
+    return found or None
+
+
+def same_networks(control_path: Path, treatment_path: Path) -> dict | None:
+    """How many seeds ended with the same networks, bit for bit, in both runs; None where a
+    run does not record them."""
+    control, treatment = networks_by_seed(control_path), networks_by_seed(treatment_path)
+    if control is None or treatment is None:
+        return None
+    seeds = sorted(set(control) & set(treatment))
+    return dict(seeds=len(seeds), identical_seeds=[s for s in seeds if control[s] == treatment[s]])
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("control", type=Path)
@@ -120,6 +146,8 @@ def write_pairing(
                   arenas=rows)  # fmt: skip
     if episodes is not None:
         record["same_episodes"] = episodes
+    if (networks := same_networks(control_path, treatment_path)) is not None:
+        record["same_networks"] = networks
     atomic_write_json(out / f"{name}.json", record)
     table = "\n".join(writing.markdown_table(
         ("arena", "control success (%)", "treatment success (%)", "treatment − control", "verdict"),
@@ -130,7 +158,7 @@ def write_pairing(
         f"# {control.agent}: {treatment_path} against {control_path}\n\n"
         f"Same agent, settings, {len(control.seeds)} seeds and evaluation episodes; success, "
         "mean ± 95 % interval; the difference paired by seed.\n\n"
-        f"{table}\n\n{_episodes_line(episodes)}Command: `{command}`\n"
+        f"{table}\n\n{_episodes_line(episodes)}{_networks_line(networks)}Command: `{command}`\n"
     )
     (out / f"{name}.md").write_text(text)
     return record, text
@@ -142,6 +170,13 @@ def _episodes_line(episodes: dict | None) -> str:
     n_same, n = len(episodes["identical_seeds"]), episodes["seeds"]
     names = ", ".join(name.replace("_", " ") for name in episodes["arrays"])
     return f"Training episodes ({names}), every one equal: {n_same} of {n} seeds.\n\n"
+
+
+def _networks_line(networks: dict | None) -> str:
+    if networks is None:
+        return ""
+    n_same, n = len(networks["identical_seeds"]), networks["seeds"]
+    return f"Final networks (sha256 per seed), bit for bit equal: {n_same} of {n} seeds.\n\n"
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ are frozen and marked, the others carry on untouched), and writes an orbax check
 the full state (parameters, targets, optimisers, buffers, RNG, counters) every few chunks so
 that ``resume=True`` continues an interrupted run. At the end it writes, into ``out_dir``:
 
-    run.json          config, agents (seed + hyperparameters), status, timings, device
+    run.json          config, agents (seed + hyperparameters), status, timings, device, jax,
+                      XLA_FLAGS, each agent's final networks' sha256
     params/           orbax: final actor, critics and targets of every agent (leading axis)
     checkpoints/      orbax: the last full state, to resume from (``drop_checkpoints``: deleted
                       once the run is finished)
@@ -268,6 +269,8 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
         "device": str(jax.devices()[0].device_kind),
         "devices": placement.n_devices,
         "processes": jax.process_count(),
+        "jax": jax.__version__,
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),  # docs/reliability.md §2: repeatability
         "config": dataclasses.asdict(cfg),
         "agent": cfg.agent.name,
         **(meta or {}),
@@ -289,6 +292,10 @@ def _train_locked(run: RunPlan, stop: interrupts.StopRequest) -> dict:
             console.print(f"{out_dir} is a finished run: nothing to resume (its results are "
                           "as they were)")  # fmt: skip
             return saved
+        if changed := run_state.compiled_by(saved, summary):
+            console.print(f"warning: {'; '.join(changed)} since {out_dir} started: the rest of "
+                          "it may compute with other kernels and need not repeat an unbroken "
+                          "run bit for bit (docs/reliability.md §2)", markup=False)  # fmt: skip
         seconds_before = saved.get("train_seconds") or 0.0
         if checkpoint.has_checkpoints(out_dir / "checkpoints"):
             abstract = jax.eval_shape(jax.vmap(trainer.init), keys)  # the real agents

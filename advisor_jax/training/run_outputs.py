@@ -9,6 +9,7 @@ import jax
 import numpy as np
 
 import envs
+from advisor_jax.agent.advisors import tree_sha256
 from advisor_jax.agent.hparams import rl_hparams
 from advisor_jax.evaluation.evaluate import (
     advisor_evaluator,
@@ -48,10 +49,10 @@ def finish_run(out_dir, state, hp, cfg, agents, grid, summary, console, phases, 
     run_file = out_dir / "run.json"
     check()
     extra = {} if phases is None else phases.params(state)
-    params = checkpoint.save_tree(
-        out_dir / "params", final_params(state, cfg, extra), summary.get("identity")
-    )
-    summary["params_sha256"] = checkpoint.manifest_sha256(params)
+    networks = final_params(state, cfg, extra)
+    params = checkpoint.save_tree(out_dir / "params", networks, summary.get("identity"))
+    summary["params_sha256"] = checkpoint.manifest_sha256(params)  # the files, as stored
+    summary["agent_params_sha256"] = agent_params_sha256(networks, len(agents))
     metrics, series = write_episode_metrics(out_dir, state, hp, agents, phases)
     evaluation = {}
     if eval_episodes:
@@ -130,6 +131,18 @@ def _evaluate(evaluators, actor, key, diverged, check) -> dict:
         check()
         out |= evaluate_population({arena: evaluator}, actor, key, np.asarray(diverged))
     return out
+
+
+def agent_params_sha256(networks: dict, n_agents: int) -> list[str]:
+    """Per agent, the sha256 of its final networks' values (``advisors.tree_sha256`` of its
+    slice of ``networks``): equal in two runs exactly where that agent learned the same bits.
+    ``params_sha256`` cannot say so: it hashes the stored files, whose names and metadata
+    differ from one save to the next."""
+
+    def agent(i: int) -> dict:
+        return jax.tree.map(lambda leaf: leaf[i], networks)
+
+    return [tree_sha256(agent(i)) for i in range(n_agents)]
 
 
 def final_params(state, cfg, extra: dict | None = None) -> dict:

@@ -10,7 +10,8 @@ file belongs to, and whether a directory is exactly one run.
   versions have none) and the seeds themselves. run.json, every checkpoint's and the
   final parameters' ``sha256.json`` carry it (``checkpoint``), so a file copied from another
   run, or one left by a killed run whose run.json was removed, is refused instead of mixed
-  in; a run whose advisor changed is not resumed (``check_same_advisor``).
+  in; a run whose advisor changed is not resumed (``check_same_advisor``); one resumed
+  on another device, jax or ``XLA_FLAGS`` is, with a warning (``compiled_by``).
 * ``check_new_directory(out_dir)``: a fresh run needs an empty directory (``.lock`` aside):
   a killed run's checkpoints or log would otherwise be taken for the new run's.
 * ``check_run_entries(out_dir)``: the files of a run are not links (a resumed run writes
@@ -202,6 +203,23 @@ def check_same_advisor(saved: dict | None, current: dict | None, run_dir: Path) 
                 f"(run.json: {str(saved.get(key))[:16]}, now: {str(current.get(key))[:16]}); "
                 f"restore advisor {saved.get('spec')!r} as it was, or train a new run"
             )
+
+
+COMPILED_BY = {"device": "device", "jax": "jax", "xla_flags": "XLA_FLAGS"}
+"""run.json's record of what compiled the run's programs (key: name in a message)."""
+
+
+def compiled_by(saved: dict, summary: dict) -> list[str]:
+    """What compiled the run being resumed (``saved``) that is not what compiles it now
+    (``summary``): the device, jax and ``XLA_FLAGS`` (``COMPILED_BY``), one line each, e.g.
+    ``"jax '0.10.2' → '0.11.2'"``. Other kernels may compute other roundings, so the resumed
+    run need not repeat an unbroken one bit for bit. A field a run does not record (older
+    versions) is not compared."""
+    return [
+        f"{name} {saved[key]!r} → {summary.get(key)!r}"
+        for key, name in COMPILED_BY.items()
+        if key in saved and saved[key] != summary.get(key)
+    ]
 
 
 def differences(saved, current, path: str = "") -> list[str]:

@@ -72,3 +72,28 @@ def test_seeds_whose_training_episodes_all_match_are_counted(tmp_path):
         f"every one equal: {len(seeds) - 1} of {len(seeds)} seeds"
         in (out / "paired.md").read_text()
     )
+
+
+def test_seeds_whose_final_networks_match_are_counted_where_both_runs_record_them(tmp_path):
+    sides = {name: tmp_path / name for name in ("control", "treatment")}
+    for side in sides.values():
+        shutil.copytree(CONTROL, side)
+    out = tmp_path / "out"
+    paired_runs.main([str(sides["control"]), str(sides["treatment"]), "--out", str(out)])
+    assert "same_networks" not in json.loads((out / "paired.json").read_text())  # not recorded
+    assert "Final networks" not in (out / "paired.md").read_text()
+
+    seeds = [a["seed"] for a in json.loads((CONTROL / "run.json").read_text())["agents"]]
+    for name, side in sides.items():
+        summary = json.loads((side / "run.json").read_text())
+        hashes = [f"{s:064x}" for s in seeds]
+        if name == "treatment":
+            hashes[2] = "f" * 64  # the third seed of run.json learned other bits
+        (side / "run.json").write_text(json.dumps({**summary, "agent_params_sha256": hashes}))
+    paired_runs.main([str(sides["control"]), str(sides["treatment"]), "--out", str(out)])
+    networks = json.loads((out / "paired.json").read_text())["same_networks"]
+    assert networks == dict(seeds=len(seeds), identical_seeds=sorted(set(seeds) - {seeds[2]}))
+    assert (
+        f"bit for bit equal: {len(seeds) - 1} of {len(seeds)} seeds"
+        in (out / "paired.md").read_text()
+    )

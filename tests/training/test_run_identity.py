@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from advisor_jax.cli.main import main as cli_main
-from advisor_jax.training import checkpoint, reporting
+from advisor_jax.training import checkpoint, reporting, run_state
 from advisor_jax.training.run_directory import load_actor
 from advisor_jax.training.runlock import Interrupted
 from tests.training.conftest import RUN_SEEDS, TINY, train_tiny
@@ -191,3 +191,18 @@ def test_export_signs_with_sign_key(straight_run, tmp_path, capsys):
     (policy / "policy.json").write_text(text.replace('"seed": 0', '"seed": 1'))
     with pytest.raises(PolicyError, match="the signature does not match policy.json"):
         load_policy(policy, verify_key=key)
+
+
+def test_compiled_by_names_each_change_and_skips_what_an_older_run_did_not_record():
+    now = {"device": "NVIDIA H100 80GB HBM3", "jax": "0.11.2", "xla_flags": ""}
+    assert run_state.compiled_by(now, now) == []
+    started = {
+        "device": "NVIDIA H200",
+        "jax": "0.11.2",
+        "xla_flags": "--xla_gpu_deterministic_ops=true",
+    }
+    assert run_state.compiled_by(started, now) == [
+        "device 'NVIDIA H200' → 'NVIDIA H100 80GB HBM3'",
+        "XLA_FLAGS '--xla_gpu_deterministic_ops=true' → ''",
+    ]
+    assert run_state.compiled_by({"device": "NVIDIA H100 80GB HBM3"}, now) == []  # before jax

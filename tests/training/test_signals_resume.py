@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from orbax.checkpoint._src.path import deleter
 
+from advisor_jax.agent.advisors import tree_sha256
 from advisor_jax.cli.main import main as cli_main
 from advisor_jax.evaluation.evaluate import population_evaluator
 from advisor_jax.training import checkpoint, host_loop, run_outputs
@@ -82,17 +83,35 @@ def assert_checkpoints_whole(out):
 
 
 def test_sigterm_inside_a_chunk_then_resume_gives_every_log_row(
-    straight_run, tmp_path, tiny_functions
+    straight_run, tmp_path, capsys, tiny_functions
 ):
+    """... and the same networks by ``agent_params_sha256``, where ``params_sha256`` (the
+    stored files) differs; a resume under other ``XLA_FLAGS`` than the start's says so."""
     out = tmp_path / "run"
     with pytest.raises(Interrupted) as info:
         train_tiny(out, signal_in_chunk(tiny_functions, signal.SIGTERM))
     assert info.value.signum == signal.SIGTERM
     assert [row["step"] for row in log_rows(out)] == [TINY.chunk_steps]  # the row of the stop
+    record = json.loads((out / "run.json").read_text())
+    assert record["jax"] == jax.__version__
+    assert record["xla_flags"] == os.environ.get("XLA_FLAGS", "")
+    (out / "run.json").write_text(json.dumps({**record, "xla_flags": "--xla_started_with=1"}))
+    capsys.readouterr()
     train_tiny(out, tiny_functions, resume=True)
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"warning: XLA_FLAGS '--xla_started_with=1' → {record['xla_flags']!r} since" in err
     assert log_rows(out) == log_rows(straight_run)
     assert_same_metrics(out, straight_run)
     assert_same_params(out, straight_run)
+    resumed, straight = (json.loads((o / "run.json").read_text()) for o in (out, straight_run))
+    assert resumed["agent_params_sha256"] == straight["agent_params_sha256"]
+    assert resumed["params_sha256"] != straight["params_sha256"]
+    networks = checkpoint.load_tree(out / "params")
+    assert resumed["agent_params_sha256"] == [
+        tree_sha256(jax.tree.map(lambda leaf: leaf[i], networks))  # noqa: B023
+        for i in range(len(RUN_SEEDS))
+    ]
+    assert len(set(resumed["agent_params_sha256"])) == len(RUN_SEEDS)
 
 
 def _second_sigint_while_checksums_are_recorded(monkeypatch):
