@@ -17,6 +17,9 @@ Scores are per seed (one agent's evaluation success, say). For a point of a stud
   initial networks and the environment stream; with one evaluation seed, the evaluation
   episodes too), its t interval and a verdict.
 * ``welch_interval``: X − Y by means with Welch's interval, where no seeds are shared.
+* ``seeds_and_episodes_interval``: the mean of a seeds × episodes table of scores with an
+  interval for drawing both anew (``t_interval`` of the seeds' means holds the episodes
+  fixed: every agent is scored on the same ones).
 
 A "task" here is an evaluation arena: scores of shape [runs] are one task, [runs, tasks]
 several. Bootstraps are seeded, so a report reproduces to the digit.
@@ -225,6 +228,46 @@ def welch_interval(x: Sequence[float | None], y: Sequence[float | None]) -> Inte
     df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
     half = float(stats.t.ppf(0.5 + LEVEL / 2, df) * math.sqrt(va + vb))
     return Interval(diff, diff - half, diff + half, n)
+
+
+def seeds_and_episodes_interval(scores: np.ndarray, level: float = LEVEL) -> Interval:
+    """Mean of ``scores`` [seeds, episodes] (one agent per row, every agent on the same
+    episodes) and its interval where the seeds *and* the episodes are random draws: the
+    two-way crossed random-effects model y = μ + a_seed + b_episode + e, whose grand mean has
+    variance σ_a²/S + σ_b²/E + σ_e²/(S E), estimated by (MS_seeds + MS_episodes −
+    MS_residual) / (S E) from the mean squares of the two-way table (each expectation:
+    σ_e² + E σ_a², σ_e² + S σ_b², σ_e²; a component estimated below 0 counts as 0), with
+    Satterthwaite's degrees of freedom for the t quantile. Rows with a NaN (a diverged
+    agent) are dropped; NaN half-width below 2 seeds or 2 episodes. ``t_interval`` of the
+    row means is this with the episodes held fixed."""
+    y = np.asarray(scores, np.float64)
+    y = y[~np.isnan(y).any(axis=1)] if y.ndim == 2 else y.reshape(0, 0)
+    n_seeds, n_episodes = y.shape if y.size else (0, 0)
+    if n_seeds == 0 or n_episodes == 0:
+        return Interval(math.nan, math.nan, math.nan, n_seeds)
+    mean = float(y.mean())
+    if n_seeds < 2 or n_episodes < 2:
+        return Interval(mean, math.nan, math.nan, n_seeds)
+    rows, cols = y.mean(axis=1), y.mean(axis=0)
+    ms_seeds = n_episodes * float(np.sum((rows - mean) ** 2)) / (n_seeds - 1)
+    ms_episodes = n_seeds * float(np.sum((cols - mean) ** 2)) / (n_episodes - 1)
+    residual = y - rows[:, None] - cols[None, :] + mean
+    ms_residual = float(np.sum(residual**2)) / ((n_seeds - 1) * (n_episodes - 1))
+    # A variance component estimated below 0 counts as 0: its mean square drops out with
+    # the residual's share it would cancel.
+    terms = [(ms_residual, (n_seeds - 1) * (n_episodes - 1), 1.0)]  # (MS, its dof, weight)
+    for ms, dof in ((ms_seeds, n_seeds - 1), (ms_episodes, n_episodes - 1)):
+        if ms > ms_residual:
+            terms += [(ms, dof, 1.0), (ms_residual, terms[0][1], -1.0)]
+    combined = sum(w * ms for ms, _, w in terms)
+    variance = combined / (n_seeds * n_episodes)
+    if variance <= 0.0:
+        return Interval(mean, mean, mean, n_seeds)
+    dof = combined**2 / sum((w * ms) ** 2 / d for ms, d, w in terms)
+    from scipy import stats
+
+    half = float(stats.t.ppf(0.5 + level / 2, dof) * math.sqrt(variance))
+    return Interval(mean, mean - half, mean + half, n_seeds)
 
 
 def summary(values: Sequence[float | None]) -> dict:

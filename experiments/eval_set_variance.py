@@ -7,8 +7,10 @@ population mean would move on another set of as many episodes. This measures tha
 a finished run: its agents scored on SETS other sets of EPISODES episodes each (eval seeds
 FIRST, FIRST+1, ...) and on one large set (REFERENCE_EPISODES episodes of eval seed
 REFERENCE_SEED), the best estimate here of the mean over all episodes; per arena, the spread
-of the sets' population means, how often the seed interval of a set holds the large set's
-mean (95 % if the episodes did not matter), and where the run's own evaluation lies.
+of the sets' population means, how often a set's interval holds the large set's mean (the
+seeds' t interval: 95 % only if the episodes did not matter; the interval for new seeds and
+episodes, ``stats.seeds_and_episodes_interval``: 95 % if it is right), and where the run's
+own evaluation lies.
 
     python experiments/eval_set_variance.py RUN --out OUT [--episodes 50 --sets 20
         --reference-episodes 2000]
@@ -19,6 +21,7 @@ Writes OUT/eval_set_variance.{json,md}. Each arena's evaluator is compiled once 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -26,30 +29,38 @@ import numpy as np
 from rich.progress import track
 
 from advisor_jax.bench import writing
-from advisor_jax.evaluation.evaluate import evaluate_population, population_evaluator
+from advisor_jax.evaluation.evaluate import (
+    evaluate_population,
+    population_evaluator,
+    success_table,
+)
 from advisor_jax.fileio import atomic_write_json
-from advisor_jax.stats import t_interval
+from advisor_jax.stats import seeds_and_episodes_interval, t_interval
 from advisor_jax.training.population import eval_key
 from advisor_jax.training.run_directory import load_params, load_run
 
 
-def population_means(scores: dict) -> dict[str, tuple[float, float]]:
+def population_means(scores: dict) -> dict[str, tuple[float, float, float]]:
     """Per arena of ``evaluate_population``'s output: (mean success over the agents that did
-    not diverge, half-width of its 95 % t interval over them), in points."""
+    not diverge, the half-width of its 95 % t interval over them, and that of the interval
+    for new seeds and episodes, ``stats.seeds_and_episodes_interval``; NaN without
+    outcomes), in points."""
     out = {}
     for arena, rates in scores.items():
         success = [s for s in rates["success"] if s is not None]
-        interval = t_interval(success)
-        out[arena] = (100 * float(np.mean(success)), 100 * interval.half)
+        table = success_table(rates)
+        both = math.nan if table is None else seeds_and_episodes_interval(table).half
+        out[arena] = (100 * float(np.mean(success)), 100 * t_interval(success).half, 100 * both)
     return out
 
 
 def summarise(sets: list[dict], reference: dict, own: dict | None) -> dict:
     """Per arena: the sets' population means against the reference mean."""
     rows = {}
-    for arena, (truth, _) in reference.items():
+    for arena, (truth, *_) in reference.items():
         means = np.array([s[arena][0] for s in sets])
         widths = np.array([s[arena][1] for s in sets])
+        both = np.array([s[arena][2] for s in sets])
         rows[arena] = dict(
             reference_mean=round(truth, 2),
             set_means=[round(m, 2) for m in means],
@@ -57,6 +68,8 @@ def summarise(sets: list[dict], reference: dict, own: dict | None) -> dict:
             set_range=[round(float(means.min()), 2), round(float(means.max()), 2)],
             mean_half_width=round(float(widths.mean()), 2),
             coverage=round(float(np.mean(np.abs(means - truth) <= widths)), 3),
+            mean_half_width_seeds_and_episodes=round(float(both.mean()), 2),
+            coverage_seeds_and_episodes=round(float(np.mean(np.abs(means - truth) <= both)), 3),
         )
         if own is not None and arena in own:
             rows[arena]["own_mean"] = round(own[arena][0], 2)
@@ -117,14 +130,16 @@ def page(record: dict, argv) -> str:
     """The record as a markdown page with its command."""
     rows = [
         (arena, r["reference_mean"], r["set_sd"], f"{r['set_range'][0]}–{r['set_range'][1]}",
-         r["mean_half_width"], f"{100 * r['coverage']:.0f} %",
+         f"{r['mean_half_width']} / {r['mean_half_width_seeds_and_episodes']}",
+         f"{100 * r['coverage']:.0f} % / {100 * r['coverage_seeds_and_episodes']:.0f} %",
          "–" if "own_offset" not in r else f"{r['own_mean']} ({r['own_offset']:+.1f})")
         for arena, r in record["arenas"].items()
     ]  # fmt: skip
     table = "\n".join(writing.markdown_table(
         ("arena", f"mean on {record['reference_episodes']} episodes",
          f"sd of the sets' means ({record['episodes']} episodes each)", "their range",
-         "seed interval's half-width (mean)", "sets whose interval holds the large set's mean",
+         "half-width (mean): seeds / seeds and episodes",
+         "sets whose interval holds the large set's mean: seeds / seeds and episodes",
          f"the run's own evaluation ({record['own_episodes']} episodes, eval seed "
          f"{record['own_eval_seed']})"),
         rows, align="l",

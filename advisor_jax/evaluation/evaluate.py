@@ -256,6 +256,23 @@ def advisor_evaluator(
     return jax.jit(jax.vmap(fn, in_axes=(0, None)))
 
 
+def success_table(scores: Mapping[str, Any], agents: Sequence[int] | None = None):
+    """[agents, episodes] float array of one arena's ``evaluate_population`` output (or
+    eval.json's): 1.0 where the agent reached the goal, NaN rows for agents without outcomes
+    (diverged); None where the record holds no ``outcomes`` (runs before 2026-12-08)."""
+    outcomes = scores.get("outcomes")
+    if outcomes is None:
+        return None
+    agents = range(len(outcomes)) if agents is None else agents
+    rows = [
+        np.full(scores["episodes"], np.nan)
+        if outcomes[i] is None
+        else (np.frombuffer(outcomes[i].encode(), np.uint8) - ord("0") == GOAL).astype(float)
+        for i in agents
+    ]
+    return np.array(rows).reshape(len(rows), scores["episodes"])
+
+
 def evaluate_population(
     evaluators: Mapping[str, Callable], actor_params, key: jax.Array, diverged=None
 ) -> dict[str, dict[str, list]]:
@@ -269,9 +286,11 @@ def evaluate_population(
 
     Returns:
       ``{arena: {"success": [...], "collision": [...], "timeout": [...],
-      "collision_speed": [...], "collision_speed_sd": [...], "episodes": n}}`` with one
-      entry per agent (the speeds' mean and spread over its collision episodes, None
-      without any).
+      "collision_speed": [...], "collision_speed_sd": [...], "outcomes": [...],
+      "episodes": n}}`` with one entry per agent (the speeds' mean and spread over its
+      collision episodes, None without any; ``outcomes``: each episode's outcome code as a
+      digit, 1 goal, 2 collision, 3 timeout: what ``stats.seeds_and_episodes_interval``
+      needs).
     """
     out = {}
     for arena, evaluator in evaluators.items():
@@ -289,6 +308,10 @@ def evaluate_population(
             if diverged is not None:
                 value = np.where(diverged, np.nan, value)
             result[name] = [None if np.isnan(v) else float(v) for v in value]
+        result["outcomes"] = [
+            None if diverged is not None and diverged[i] else "".join(map(str, row))
+            for i, row in enumerate(np.asarray(metrics.outcome))
+        ]
         result["episodes"] = int(metrics.outcome.shape[-1])
         out[arena] = result
     return out

@@ -24,8 +24,14 @@ from rich.table import Table
 import envs
 from advisor_jax.agent.hparams import rl_hparams
 from advisor_jax.agent.selector import expected_max_firing_rate
+from advisor_jax.evaluation.evaluate import success_table
 from advisor_jax.fileio import atomic_write_bytes, atomic_write_npz
-from advisor_jax.stats import MIN_SEEDS_FOR_INTERVAL, format_interval, t_interval
+from advisor_jax.stats import (
+    MIN_SEEDS_FOR_INTERVAL,
+    format_interval,
+    seeds_and_episodes_interval,
+    t_interval,
+)
 
 FIRING_WINDOW = 30  # w of Eq. (11), as in Fig. 10
 METRIC_NAMES = (
@@ -261,7 +267,8 @@ def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) ->
         table.add_column(f"eval success: {arena}", justify="right")
     n_total = metrics["outcome"].shape[1]
     tail = max(1, n_total // 10)
-    for key, members in group_agents(agents, grid).items():
+    groups, notes = group_agents(agents, grid), []
+    for key, members in groups.items():
         ok = [m for m in members if not metrics["diverged"][m]]
         last = metrics["outcome"][ok, -tail:]
         train = [float(np.mean(row[row > 0] == envs.GOAL)) for row in last if (row > 0).any()]
@@ -270,7 +277,20 @@ def print_summary(console: Console, summary: Mapping, metrics, grid: Mapping) ->
         for arena in evaluation:
             cells.append(_pct(t_interval([evaluation[arena]["success"][m] for m in ok])))
         table.add_row(*cells)
+        drawn_anew = [
+            f"{arena} {_pct(seeds_and_episodes_interval(successes))}"
+            for arena in evaluation
+            if (successes := success_table(evaluation[arena], ok)) is not None
+            and len(ok) >= MIN_SEEDS_FOR_INTERVAL
+        ]
+        if drawn_anew:
+            label = "" if len(groups) == 1 else f"{cells[0]}: "
+            notes.append(f"{label}{', '.join(drawn_anew)}")
     console.print(table)
+    if notes:  # the table's ± holds the evaluation episodes fixed: every agent plays the same
+        console.print("eval success for new seeds and new evaluation episodes alike "
+                      "(stats.seeds_and_episodes_interval): " + "; ".join(notes),
+                      highlight=False, markup=False)  # fmt: skip
 
 
 def _pct(interval) -> str:

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from advisor_jax.evaluation.evaluate import success_table
 from advisor_jax.training.run_directory import reevaluate
 from tests.experiments.scripts import load_script
 
@@ -32,7 +33,20 @@ def test_each_set_is_the_runs_reevaluation_on_its_seed_and_the_summary_follows(
     assert training["set_sd"] == round(float(means.std(ddof=1)), 2)
     assert training["set_range"] == [means.min(), means.max()]
     assert 0 <= training["coverage"] <= 1 and "own_offset" not in training
+    assert 0 <= training["coverage_seeds_and_episodes"] <= 1
+    assert training["mean_half_width_seeds_and_episodes"] >= 0
     assert "sets whose interval holds" in (out / "eval_set_variance.md").read_text()
+
+
+def test_outcomes_give_each_agents_success_and_none_for_a_diverged_one(straight_run):
+    scores = reevaluate(straight_run, 3, 6, ("training",))["training"]
+    table = success_table(scores)
+    assert table.shape == (len(scores["success"]), 6)
+    assert list(table.mean(axis=1)) == pytest.approx(scores["success"])
+    assert all(set(row) <= set("123") and len(row) == 6 for row in scores["outcomes"])
+    scores = {**scores, "outcomes": [None, *scores["outcomes"][1:]]}
+    assert np.isnan(success_table(scores)[0]).all()
+    assert success_table(scores, [1]).shape == (1, 6)
 
 
 @pytest.mark.parametrize(

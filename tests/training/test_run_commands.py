@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
+from advisor_jax import stats
 from advisor_jax.cli.train import written
 from advisor_jax.training import plots, reporting
 from tests.cli.test_main import _run as _cli
@@ -75,6 +76,28 @@ def test_the_summary_table_says_what_its_interval_is():
     console = Console(record=True, width=120)
     reporting.print_summary(console, {**summary, "agents": agents[:1]}, metrics, {})
     assert "DDPG: 1 agent " in console.export_text()  # not "1 agents"
+
+
+def test_the_summary_also_gives_the_interval_for_new_evaluation_episodes():
+    """Three agents that fail the same two of four episodes: their seeds agree (± 0), but a
+    new set of episodes could fall anywhere: the seeds-and-episodes interval says so."""
+    agents = [{"index": i, "seed": i} for i in range(3)]
+    metrics = {"outcome": np.ones((3, 4), np.int32), "diverged": np.zeros(3, bool)}
+    evaluation = {"training": {"success": [0.5] * 3, "outcomes": ["1122"] * 3, "episodes": 4}}
+    summary = {"agent": "DDPG", "agents": agents, "evaluation": evaluation}
+    console = Console(record=True, width=200)
+    reporting.print_summary(console, summary, metrics, {})
+    text = " ".join(console.export_text().split())
+    wide = stats.t_interval([1.0, 1.0, 0.0, 0.0])  # the four episodes are the sample
+    assert "50.0 ± 0.0 %" in text
+    assert (
+        f"new evaluation episodes alike (stats.seeds_and_episodes_interval): training "
+        f"50.0 ± {100 * wide.half:.1f} %" in text
+    )
+    del evaluation["training"]["outcomes"]  # a run recorded before outcomes: no such line
+    console = Console(record=True, width=200)
+    reporting.print_summary(console, summary, metrics, {})
+    assert "new evaluation episodes" not in console.export_text()
 
 
 def test_the_runs_plots_label_their_axes(evaluated_run, monkeypatch):
