@@ -237,9 +237,9 @@ def seeds_and_episodes_interval(scores: np.ndarray, level: float = LEVEL) -> Int
     variance σ_a²/S + σ_b²/E + σ_e²/(S E), estimated by (MS_seeds + MS_episodes −
     MS_residual) / (S E) from the mean squares of the two-way table (each expectation:
     σ_e² + E σ_a², σ_e² + S σ_b², σ_e²; a component estimated below 0 counts as 0), with
-    Satterthwaite's degrees of freedom for the t quantile. Rows with a NaN (a diverged
-    agent) are dropped; NaN half-width below 2 seeds or 2 episodes. ``t_interval`` of the
-    row means is this with the episodes held fixed."""
+    Satterthwaite's degrees of freedom for the t quantile, and never narrower than
+    ``t_interval`` of the row means, which is this with the episodes held fixed. Rows with a
+    NaN (a diverged agent) are dropped; NaN half-width below 2 seeds or 2 episodes."""
     y = np.asarray(scores, np.float64)
     y = y[~np.isnan(y).any(axis=1)] if y.ndim == 2 else y.reshape(0, 0)
     n_seeds, n_episodes = y.shape if y.size else (0, 0)
@@ -267,6 +267,9 @@ def seeds_and_episodes_interval(scores: np.ndarray, level: float = LEVEL) -> Int
     from scipy import stats
 
     half = float(stats.t.ppf(0.5 + level / 2, dof) * math.sqrt(variance))
+    # Never narrower than with the episodes held fixed: more degrees of freedom from the
+    # episodes' term can shrink the t quantile faster than the variance grows (3 seeds).
+    half = max(half, t_interval(rows, level).half)
     return Interval(mean, mean - half, mean + half, n_seeds)
 
 

@@ -33,7 +33,9 @@ import numpy as np
 from advisor_jax.analysis.point_settings import preset_differences, settings_of
 from advisor_jax.analysis.rundata import float32_digits, with_derived
 
-EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd")
+EVAL_KEYS = ("success", "collision", "timeout", "collision_speed", "collision_speed_sd", "outcomes")
+"""What a seed keeps of its run's evaluation (``outcomes``: its episodes' codes, runs from
+2026-12-08; None before)."""
 
 
 @dataclasses.dataclass
@@ -274,6 +276,23 @@ class Point:
     def scores(self, arena: str, key: str = "success") -> dict:
         """{seed: value} of the evaluation in ``arena`` (None: diverged or absent)."""
         return {s: (r.evaluation.get(arena) or {}).get(key) for s, r in self.seeds.items()}
+
+    def seeds_and_episodes(self, arena: str):
+        """``stats.seeds_and_episodes_interval`` of the seeds' success on ``arena``'s
+        evaluation episodes (diverged seeds left out), or None where a seed that did not
+        diverge has no per-episode outcomes (runs before 2026-12-08)."""
+        from advisor_jax.evaluation.evaluate import success_table
+        from advisor_jax.stats import seeds_and_episodes_interval
+
+        kept = [r.evaluation.get(arena) or {} for r in self.seeds.values()]
+        kept = [ev for ev in kept if ev.get("success") is not None]
+        if not kept or any(ev.get("outcomes") is None for ev in kept):
+            return None
+        episodes = len(kept[0]["outcomes"])
+        if any(len(ev["outcomes"]) != episodes for ev in kept):
+            return None
+        rows = {"outcomes": [ev["outcomes"] for ev in kept], "episodes": episodes}
+        return seeds_and_episodes_interval(success_table(rows))
 
     def episodes(self, name: str) -> np.ndarray | None:
         """[seeds, budget] of a per-episode metric (None where a run lacks metrics.npz)."""

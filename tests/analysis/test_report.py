@@ -9,6 +9,7 @@ import re
 import numpy as np
 import pytest
 
+from advisor_jax import stats
 from advisor_jax.analysis.items.sweeps import reaches_zero
 from advisor_jax.analysis.report import make_report
 from advisor_jax.analysis.runs import load_runs, pool
@@ -280,3 +281,40 @@ def test_up_to_twenty_lines_in_one_legend_have_twenty_colours():
 
     assert [line_colour(i, 10) for i in range(10)] == [f"C{i}" for i in range(10)]
     assert len({to_hex(line_colour(i, 17)) for i in range(17)}) == 17  # Table 1 with brax
+
+
+def _with_outcomes(root, names):
+    """Per-episode outcomes in the runs ``names`` below ``root``: seed k's success v as
+    round(50 v) goals first, then collisions (every agent fails the last episodes)."""
+    for name in names:
+        path = root / name / "run.json"
+        summary = json.loads(path.read_text())
+        for ev in summary["evaluation"].values():
+            n = ev["episodes"]
+            ev["outcomes"] = ["1" * round(n * v) + "2" * (n - round(n * v)) for v in ev["success"]]
+        path.write_text(json.dumps(summary))
+
+
+def test_table1_adds_the_interval_for_new_episodes_where_every_row_has_outcomes(runs, tmp_path):
+    def report(name):
+        out = tmp_path / name
+        make_report([runs], out, items=["table1"], command="report", say=lambda m: 0)
+        return (out / "report.md").read_text(), json.loads((out / "table1.json").read_text())
+
+    text, _ = report("none")
+    assert "new seeds and new evaluation episodes" not in text  # runs before outcomes
+    _with_outcomes(runs, ["addpg", "ddpg", "ddpg_noclip", "afd"])
+    text, _ = report("some")
+    assert "new seeds and new evaluation episodes" not in text  # afd250 has none
+    _with_outcomes(runs, ["afd250"])
+    text, record = report("all")
+    assert "new seeds and new evaluation episodes" in text
+    ddpg = next(p for p in record["points"] if p["agent"] == "DDPG" and not p["settings"])
+    successes = np.array([[1.0] * round(50 * v) + [0.0] * (50 - round(50 * v))
+                          for v in (0.5, 0.7, 0.6, 0.8)])  # fmt: skip
+    want = stats.seeds_and_episodes_interval(successes)
+    got = ddpg["training"]["seeds_and_episodes"]
+    assert got["mean"] == pytest.approx(0.65) and got["ci95"] == pytest.approx(
+        [want.low, want.high]
+    )
+    assert f"| DDPG | {stats.format_interval(want, scale=100)} |" in text

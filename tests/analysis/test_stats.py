@@ -180,3 +180,13 @@ def test_seeds_and_episodes_interval_covers_the_mean_over_new_seeds_and_episodes
         seeds_only += t.low <= truth <= t.high
     assert 0.92 <= both / 400 <= 0.98
     assert seeds_only / 400 < seeds_only_below
+
+
+def test_seeds_and_episodes_interval_is_never_narrower_than_the_seeds_alone():
+    """With 3 seeds the episodes' degrees of freedom can shrink the t quantile faster than
+    their variance grows; the interval then keeps the seeds' t interval."""
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        y = (rng.random((3, 30)) < rng.random((3, 1))).astype(float)
+        both, seeds = stats.seeds_and_episodes_interval(y), stats.t_interval(y.mean(axis=1))
+        assert both.half >= seeds.half - 1e-12

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 import envs
+from advisor_jax import stats
 from advisor_jax.analysis.items.base import (
     ADVISOR_LEVEL,
     ARENAS,
@@ -163,6 +164,7 @@ def table1(points: list[Point], context) -> Item | None:
         ),
         "",
     ]
+    lines += _new_episodes_lines(rows, record)
     lines += _claim_lines(found)
     lines += _learning_lines(rows)
     return Item(
@@ -173,6 +175,29 @@ def table1(points: list[Point], context) -> Item | None:
         lines,
         rows,
     )
+
+
+def _new_episodes_lines(rows: list[Point], record: dict) -> list[str]:
+    """Where every row's runs record per-episode outcomes: each row's success with the
+    interval for new seeds *and* new evaluation episodes (the table's ± holds the episodes
+    fixed), also into ``record["points"][k][arena]["seeds_and_episodes"]``."""
+    found = [{a: r.seeds_and_episodes(a) for a in ARENAS} for r in rows]
+    if any(iv is None for row in found for iv in row.values()):
+        return []
+    table = []
+    for r, row, point in zip(rows, found, record["points"], strict=True):
+        for arena, iv in row.items():
+            point[arena]["seeds_and_episodes"] = {"mean": iv.estimate, "ci95": [iv.low, iv.high]}
+        table.append((r.text(skip=tuple(shared_label(rows))),
+                      *(stats.format_interval(iv, scale=100) for iv in row.values())))  # fmt: skip
+    return [
+        "The same success with the 95 % interval for new seeds and new evaluation episodes "
+        "alike (`stats.seeds_and_episodes_interval`): what a comparison with numbers from "
+        "other episodes, the paper's, must read.",
+        "",
+        *markdown_table(["agent", "training env", "validation env"], table, align="lr"),
+        "",
+    ]
 
 
 def _claim_lines(found: list[dict]) -> list[str]:
