@@ -23,7 +23,6 @@ seeds whose final networks are equal bit for bit (``same_networks``).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -90,28 +89,23 @@ def same_episodes(control: Point, treatment: Point) -> dict | None:
     return dict(arrays=list(EPISODE_ARRAYS), seeds=len(seeds), identical_seeds=same)
 
 
-def networks_by_seed(path: Path) -> dict[int, str] | None:
-    """Each seed's final networks' sha256 (run.json's ``agent_params_sha256``) in the runs
-    below ``path``; None where a run does not record them (versions before 2026-12-08)."""
-    found = {}
-    for run_file in sorted(path.rglob("run.json")):
-        run = json.loads(run_file.read_text())
-        if "agent_params_sha256" not in run:
-            return None
-        found |= dict(
-            zip((a["seed"] for a in run["agents"]), run["agent_params_sha256"], strict=True)
-        )
-    return found or None
+def _networks_sha256(seed) -> str | None:
+    """A seed's final networks' sha256 (its run's ``agent_params_sha256``), or None where
+    the run does not record them (versions before 2026-12-08)."""
+    found = seed.run.summary.get("agent_params_sha256")
+    return None if found is None else found[seed.index]
 
 
-def same_networks(control_path: Path, treatment_path: Path) -> dict | None:
-    """How many seeds ended with the same networks, bit for bit, in both runs; None where a
+def same_networks(control: Point, treatment: Point) -> dict | None:
+    """How many seeds ended with the same networks, bit for bit, in both points; None where a
     run does not record them."""
-    control, treatment = networks_by_seed(control_path), networks_by_seed(treatment_path)
-    if control is None or treatment is None:
+    hashes = [{s: _networks_sha256(r) for s, r in p.seeds.items()} for p in (control, treatment)]
+    if any(h is None for found in hashes for h in found.values()):
         return None
-    seeds = sorted(set(control) & set(treatment))
-    return dict(seeds=len(seeds), identical_seeds=[s for s in seeds if control[s] == treatment[s]])
+    seeds = sorted(set(hashes[0]) & set(hashes[1]))
+    return dict(
+        seeds=len(seeds), identical_seeds=[s for s in seeds if hashes[0][s] == hashes[1][s]]
+    )
 
 
 def main(argv=None) -> int:
@@ -146,7 +140,7 @@ def write_pairing(
                   arenas=rows)  # fmt: skip
     if episodes is not None:
         record["same_episodes"] = episodes
-    if (networks := same_networks(control_path, treatment_path)) is not None:
+    if (networks := same_networks(control, treatment)) is not None:
         record["same_networks"] = networks
     atomic_write_json(out / f"{name}.json", record)
     table = "\n".join(writing.markdown_table(

@@ -288,10 +288,8 @@ class Point:
         kept = [ev for ev in kept if ev.get("success") is not None]
         if not kept or any(ev.get("outcomes") is None for ev in kept):
             return None
-        episodes = len(kept[0]["outcomes"])
-        if any(len(ev["outcomes"]) != episodes for ev in kept):
-            return None
-        rows = {"outcomes": [ev["outcomes"] for ev in kept], "episodes": episodes}
+        # pooled runs share their evaluation episodes (``pool``), so one count fits every row
+        rows = {"outcomes": [ev["outcomes"] for ev in kept], "episodes": len(kept[0]["outcomes"])}
         return seeds_and_episodes_interval(success_table(rows))
 
     def episodes(self, name: str) -> np.ndarray | None:
